@@ -1,0 +1,192 @@
+//! Image decoding into reused frame buffers (PNG and JPEG).
+
+use std::io::Cursor;
+use std::path::Path;
+
+use image::{ColorType, ImageDecoder, ImageReader};
+
+use crate::frame::{gray_from_rgb, luma};
+use crate::{Frame, SourceError};
+
+/// Decodes encoded images into a [`Frame`], keeping its scratch buffers between calls.
+#[derive(Default)]
+pub struct ImageDecoderBuf {
+    bytes: Vec<u8>,
+    scratch: Vec<u8>,
+}
+
+impl ImageDecoderBuf {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Reads `path` and decodes it into `out`. With `expect` set, an image of another size is
+    /// an error (the calibration fixes the size).
+    pub fn read_file(
+        &mut self,
+        path: &Path,
+        expect: Option<(u32, u32)>,
+        out: &mut Frame,
+    ) -> Result<(), SourceError> {
+        use std::io::Read;
+        self.bytes.clear();
+        let mut f = std::fs::File::open(path).map_err(|e| SourceError::io(path, e))?;
+        f.read_to_end(&mut self.bytes)
+            .map_err(|e| SourceError::io(path, e))?;
+        let bytes = std::mem::take(&mut self.bytes);
+        let r = self.decode(&bytes, path, expect, out);
+        self.bytes = bytes;
+        r
+    }
+
+    /// Decodes an in-memory encoded image; `path` only names it in errors.
+    pub fn decode(
+        &mut self,
+        bytes: &[u8],
+        path: &Path,
+        expect: Option<(u32, u32)>,
+        out: &mut Frame,
+    ) -> Result<(), SourceError> {
+        let derr = |m: String| SourceError::Decode {
+            path: path.to_path_buf(),
+            message: m,
+        };
+        if bytes.is_empty() {
+            return Err(derr("file is empty".into()));
+        }
+        let reader = ImageReader::new(Cursor::new(bytes))
+            .with_guessed_format()
+            .map_err(|e| derr(e.to_string()))?;
+        if reader.format().is_none() {
+            return Err(derr("unknown image format (PNG or JPEG expected)".into()));
+        }
+        let dec = reader.into_decoder().map_err(|e| derr(e.to_string()))?;
+        let (w, h) = dec.dimensions();
+        if w == 0 || h == 0 {
+            return Err(derr(format!("image has zero size {w}x{h}")));
+        }
+        if let Some((ew, eh)) = expect {
+            if (w, h) != (ew, eh) {
+                return Err(SourceError::Size {
+                    path: path.to_path_buf(),
+                    got_w: w,
+                    got_h: h,
+                    want_w: ew,
+                    want_h: eh,
+                });
+            }
+        }
+        out.ensure_size(w, h);
+        let color = dec.color_type();
+        let total = dec.total_bytes() as usize;
+        match color {
+            ColorType::L8 => {
+                dec.read_image(&mut out.gray).map_err(|e| derr(e.to_string()))?;
+                out.has_color = false;
+            }
+            ColorType::Rgb8 => {
+                dec.read_image(&mut out.rgb).map_err(|e| derr(e.to_string()))?;
+                out.has_color = true;
+                gray_from_rgb(out);
+            }
+            ColorType::La8 | ColorType::Rgba8 | ColorType::L16 | ColorType::Rgb16 | ColorType::Rgba16 | ColorType::La16 => {
+                self.scratch.resize(total, 0);
+                dec.read_image(&mut self.scratch)
+                    .map_err(|e| derr(e.to_string()))?;
+                convert_other(color, &self.scratch, out);
+            }
+            other => return Err(derr(format!("unsupported pixel type {other:?}"))),
+        }
+        Ok(())
+    }
+}
+
+/// Converts the less common layouts (alpha, 16-bit) into grey + RGB.
+fn convert_other(color: ColorType, src: &[u8], out: &mut Frame) {
+    let chans = color.channel_count() as usize;
+    let wide = color.bytes_per_pixel() as usize / chans == 2;
+    let sample = |px: &[u8], c: usize| -> u8 {
+        if wide {
+            // 16-bit samples are native-endian in the decoder output; keep the high byte.
+            (u16::from_ne_bytes([px[2 * c], px[2 * c + 1]]) >> 8) as u8
+        } else {
+            px[c]
+        }
+    };
+    let bpp = color.bytes_per_pixel() as usize;
+    let is_color = chans >= 3;
+    out.has_color = is_color;
+    for (i, px) in src.chunks_exact(bpp).enumerate() {
+        if is_color {
+            let (r, g, b) = (sample(px, 0), sample(px, 1), sample(px, 2));
+            out.rgb[3 * i] = r;
+            out.rgb[3 * i + 1] = g;
+            out.rgb[3 * i + 2] = b;
+            out.gray[i] = luma(r, g, b);
+        } else {
+            out.gray[i] = sample(px, 0);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn encode_png_gray(w: u32, h: u32) -> Vec<u8> {
+        let img = image::GrayImage::from_fn(w, h, |x, y| image::Luma([(x * 10 + y) as u8]));
+        let mut v = Vec::new();
+        img.write_to(&mut Cursor::new(&mut v), image::ImageFormat::Png)
+            .unwrap();
+        v
+    }
+
+    #[test]
+    fn decodes_gray_png_into_reused_frame() {
+        let bytes = encode_png_gray(8, 4);
+        let mut d = ImageDecoderBuf::new();
+        let mut f = Frame::new(8, 4);
+        let ptr = f.gray.as_ptr();
+        d.decode(&bytes, Path::new("a.png"), Some((8, 4)), &mut f)
+            .unwrap();
+        assert_eq!(f.gray_at(3, 2), 32);
+        assert!(!f.has_color);
+        assert_eq!(ptr, f.gray.as_ptr());
+    }
+
+    #[test]
+    fn decodes_rgb_jpeg_to_gray_and_color() {
+        let img = image::RgbImage::from_fn(16, 16, |_, _| image::Rgb([200, 100, 50]));
+        let mut v = Vec::new();
+        img.write_to(&mut Cursor::new(&mut v), image::ImageFormat::Jpeg)
+            .unwrap();
+        let mut f = Frame::new(16, 16);
+        ImageDecoderBuf::new()
+            .decode(&v, Path::new("a.jpg"), None, &mut f)
+            .unwrap();
+        assert!(f.has_color);
+        let g = f.gray_at(5, 5) as i32;
+        assert!((g - luma(200, 100, 50) as i32).abs() <= 3, "{g}");
+    }
+
+    #[test]
+    fn rejects_wrong_size_corrupt_truncated_and_empty() {
+        let bytes = encode_png_gray(8, 4);
+        let mut d = ImageDecoderBuf::new();
+        let mut f = Frame::new(8, 4);
+        let e = d
+            .decode(&bytes, Path::new("a.png"), Some((640, 480)), &mut f)
+            .unwrap_err();
+        assert!(e.to_string().contains("expected 640x480"), "{e}");
+        let e = d.decode(&[], Path::new("z.png"), None, &mut f).unwrap_err();
+        assert!(e.to_string().contains("z.png") && e.to_string().contains("empty"));
+        let e = d
+            .decode(b"not an image at all", Path::new("c.png"), None, &mut f)
+            .unwrap_err();
+        assert!(e.to_string().contains("c.png"), "{e}");
+        let e = d
+            .decode(&bytes[..bytes.len() / 2], Path::new("t.png"), None, &mut f)
+            .unwrap_err();
+        assert!(e.to_string().contains("t.png"), "{e}");
+    }
+}

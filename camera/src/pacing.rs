@@ -1,0 +1,388 @@
+//! Pacing of a source on its own thread: as fast as possible (every frame, in order) or in
+//! real time (frames released at their timestamps; a slow consumer loses the oldest queued
+//! frames and the source never blocks). Frame buffers circulate through a fixed pool, so
+//! steady-state pacing allocates nothing.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Sender, TryRecvError, TrySendError};
+
+use crate::{Frame, FrameSource, FrameStatus, SourceError, SourceInfo};
+
+/// How frames are released to the consumer.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Pacing {
+    /// Every frame, as soon as it is decoded; the source waits for the consumer.
+    AsFastAsPossible,
+    /// Frames released at their timestamps divided by `speed` (1.0 = recorded rate).
+    RealTime { speed: f64 },
+}
+
+/// Counters shared with the source thread.
+#[derive(Debug, Default)]
+pub struct PacingStats {
+    dropped: AtomicU64,
+    delivered: AtomicU64,
+}
+
+impl PacingStats {
+    /// Frames the consumer never saw because it was too slow (real-time pacing only).
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+    pub fn delivered(&self) -> u64 {
+        self.delivered.load(Ordering::Relaxed)
+    }
+}
+
+enum Msg {
+    Frame(Frame),
+    Skipped { index: u64, reason: String },
+    End,
+    Error(SourceError),
+}
+
+/// A source running on its own thread behind a bounded queue.
+pub struct PacedSource {
+    info: SourceInfo,
+    rx: Receiver<Msg>,
+    pool_tx: Sender<Frame>,
+    stats: Arc<PacingStats>,
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<()>>,
+    ended: bool,
+}
+
+/// Queue capacity between source and consumer: small, so the consumer always gets a fresh frame.
+pub const QUEUE_CAPACITY: usize = 2;
+
+impl PacedSource {
+    /// Starts `source` on a thread named `source`.
+    pub fn spawn<S: FrameSource + 'static>(mut source: S, pacing: Pacing) -> Result<Self, SourceError> {
+        let info = source.info().clone();
+        let (tx, rx) = bounded::<Msg>(QUEUE_CAPACITY);
+        // Pool: queue + one being filled + one spare, so the producer rarely waits.
+        let pool_size = QUEUE_CAPACITY + 2;
+        let (pool_tx, pool_rx) = bounded::<Frame>(pool_size + 1);
+        for _ in 0..pool_size {
+            let _ = pool_tx.send(Frame::new(info.width, info.height));
+        }
+        let stats = Arc::new(PacingStats::default());
+        let stop = Arc::new(AtomicBool::new(false));
+        let (st, sp, steal_rx) = (stats.clone(), stop.clone(), rx.clone());
+        let handle = std::thread::Builder::new()
+            .name("source".into())
+            .spawn(move || produce(&mut source, pacing, tx, steal_rx, pool_rx, &st, &sp))
+            .map_err(|e| SourceError::Thread(e.to_string()))?;
+        Ok(PacedSource {
+            info,
+            rx,
+            pool_tx,
+            stats,
+            stop,
+            handle: Some(handle),
+            ended: false,
+        })
+    }
+
+    pub fn stats(&self) -> Arc<PacingStats> {
+        self.stats.clone()
+    }
+
+    /// Stops the source thread and joins it.
+    pub fn shutdown(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        while self.rx.try_recv().is_ok() {}
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+impl Drop for PacedSource {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+fn produce<S: FrameSource>(
+    source: &mut S,
+    pacing: Pacing,
+    tx: Sender<Msg>,
+    steal_rx: Receiver<Msg>,
+    pool_rx: Receiver<Frame>,
+    stats: &PacingStats,
+    stop: &AtomicBool,
+) {
+    let start = Instant::now();
+    let mut t0: Option<f64> = None;
+    let mut recycled: Option<Frame> = None;
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            return;
+        }
+        // A buffer: recycled from a dropped frame, from the pool, or (real time) steal the
+        // oldest queued frame rather than wait for the consumer.
+        let mut buf = match recycled.take() {
+            Some(b) => b,
+            None => match acquire(&pool_rx, &steal_rx, pacing, stats, stop) {
+                Some(b) => b,
+                None => return,
+            },
+        };
+        let msg = match source.next_frame(&mut buf) {
+            Ok(FrameStatus::Ready) => {
+                if let Pacing::RealTime { speed } = pacing {
+                    let t0 = *t0.get_or_insert(buf.timestamp);
+                    let due = start + Duration::from_secs_f64(((buf.timestamp - t0) / speed.max(1e-6)).max(0.0));
+                    let now = Instant::now();
+                    if due > now {
+                        std::thread::sleep(due - now);
+                    }
+                }
+                buf.arrival = Some(Instant::now());
+                Msg::Frame(buf)
+            }
+            Ok(FrameStatus::Skipped { index, reason }) => {
+                recycled = Some(buf);
+                Msg::Skipped { index, reason }
+            }
+            Ok(FrameStatus::End) => Msg::End,
+            Err(e) => Msg::Error(e),
+        };
+        let last = matches!(msg, Msg::End | Msg::Error(_));
+        if !deliver(msg, &tx, &steal_rx, pacing, stats, stop, &mut recycled) || last {
+            return;
+        }
+    }
+}
+
+fn acquire(
+    pool_rx: &Receiver<Frame>,
+    steal_rx: &Receiver<Msg>,
+    pacing: Pacing,
+    stats: &PacingStats,
+    stop: &AtomicBool,
+) -> Option<Frame> {
+    loop {
+        match pool_rx.try_recv() {
+            Ok(b) => return Some(b),
+            Err(TryRecvError::Disconnected) => return None,
+            Err(TryRecvError::Empty) => {}
+        }
+        if matches!(pacing, Pacing::RealTime { .. }) {
+            if let Ok(Msg::Frame(old)) = steal_rx.try_recv() {
+                stats.dropped.fetch_add(1, Ordering::Relaxed);
+                return Some(old);
+            }
+        }
+        match pool_rx.recv_timeout(Duration::from_millis(20)) {
+            Ok(b) => return Some(b),
+            Err(RecvTimeoutError::Disconnected) => return None,
+            Err(RecvTimeoutError::Timeout) if stop.load(Ordering::Relaxed) => return None,
+            Err(RecvTimeoutError::Timeout) => {}
+        }
+    }
+}
+
+/// Sends `msg`; in real time a full queue loses its oldest frame instead of blocking.
+fn deliver(
+    mut msg: Msg,
+    tx: &Sender<Msg>,
+    steal_rx: &Receiver<Msg>,
+    pacing: Pacing,
+    stats: &PacingStats,
+    stop: &AtomicBool,
+    recycled: &mut Option<Frame>,
+) -> bool {
+    let is_frame = matches!(msg, Msg::Frame(_));
+    loop {
+        match tx.try_send(msg) {
+            Ok(()) => {
+                if is_frame {
+                    stats.delivered.fetch_add(1, Ordering::Relaxed);
+                }
+                return true;
+            }
+            Err(TrySendError::Disconnected(_)) => return false,
+            Err(TrySendError::Full(m)) => {
+                msg = m;
+                if matches!(pacing, Pacing::RealTime { .. }) {
+                    if let Ok(old) = steal_rx.try_recv() {
+                        if let Msg::Frame(f) = old {
+                            stats.dropped.fetch_add(1, Ordering::Relaxed);
+                            if recycled.is_none() {
+                                *recycled = Some(f);
+                            }
+                        }
+                        continue;
+                    }
+                }
+                if stop.load(Ordering::Relaxed) {
+                    return false;
+                }
+                match tx.send_timeout(msg, Duration::from_millis(20)) {
+                    Ok(()) => {
+                        if is_frame {
+                            stats.delivered.fetch_add(1, Ordering::Relaxed);
+                        }
+                        return true;
+                    }
+                    Err(crossbeam_channel::SendTimeoutError::Timeout(m)) => msg = m,
+                    Err(crossbeam_channel::SendTimeoutError::Disconnected(_)) => return false,
+                }
+            }
+        }
+    }
+}
+
+impl FrameSource for PacedSource {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    /// Swaps the next queued frame into `out` and returns `out`'s old buffer to the pool.
+    fn next_frame(&mut self, out: &mut Frame) -> Result<FrameStatus, SourceError> {
+        if self.ended {
+            return Ok(FrameStatus::End);
+        }
+        match self.rx.recv() {
+            Ok(Msg::Frame(mut f)) => {
+                std::mem::swap(out, &mut f);
+                if f.len() == out.len() {
+                    let _ = self.pool_tx.try_send(f);
+                }
+                Ok(FrameStatus::Ready)
+            }
+            Ok(Msg::Skipped { index, reason }) => Ok(FrameStatus::Skipped { index, reason }),
+            Ok(Msg::End) | Err(_) => {
+                self.ended = true;
+                Ok(FrameStatus::End)
+            }
+            Ok(Msg::Error(e)) => {
+                self.ended = true;
+                Err(e)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A generated source: frame i has value i and timestamp i / fps.
+    struct Counter {
+        info: SourceInfo,
+        n: u64,
+        i: u64,
+        skip: Option<u64>,
+    }
+
+    impl Counter {
+        fn new(n: u64, fps: f64) -> Self {
+            Counter {
+                info: SourceInfo {
+                    name: "counter".into(),
+                    width: 4,
+                    height: 2,
+                    fps,
+                    has_color: false,
+                    len: Some(n as usize),
+                },
+                n,
+                i: 0,
+                skip: None,
+            }
+        }
+    }
+
+    impl FrameSource for Counter {
+        fn info(&self) -> &SourceInfo {
+            &self.info
+        }
+        fn next_frame(&mut self, out: &mut Frame) -> Result<FrameStatus, SourceError> {
+            if self.i >= self.n {
+                return Ok(FrameStatus::End);
+            }
+            let i = self.i;
+            self.i += 1;
+            if self.skip == Some(i) {
+                return Ok(FrameStatus::Skipped { index: i, reason: "bad".into() });
+            }
+            out.gray.fill(i as u8);
+            out.index = i;
+            out.timestamp = i as f64 / self.info.fps;
+            Ok(FrameStatus::Ready)
+        }
+    }
+
+    #[test]
+    fn as_fast_as_possible_delivers_every_frame_in_order() {
+        let mut c = Counter::new(50, 30.0);
+        c.skip = Some(7);
+        let mut p = PacedSource::spawn(c, Pacing::AsFastAsPossible).unwrap();
+        let mut f = Frame::new(4, 2);
+        let mut seen = Vec::new();
+        let mut skipped = 0;
+        loop {
+            match p.next_frame(&mut f).unwrap() {
+                FrameStatus::Ready => {
+                    seen.push(f.index);
+                    std::thread::sleep(Duration::from_micros(200));
+                }
+                FrameStatus::Skipped { .. } => skipped += 1,
+                FrameStatus::End => break,
+            }
+        }
+        assert_eq!(skipped, 1);
+        assert_eq!(seen.len(), 49);
+        assert!(seen.windows(2).all(|w| w[1] > w[0]));
+        assert_eq!(p.stats().dropped(), 0);
+    }
+
+    #[test]
+    fn real_time_drops_oldest_for_slow_consumer_and_never_reorders() {
+        let c = Counter::new(60, 200.0);
+        let mut p = PacedSource::spawn(c, Pacing::RealTime { speed: 1.0 }).unwrap();
+        let mut f = Frame::new(4, 2);
+        let mut seen = Vec::new();
+        while let FrameStatus::Ready = p.next_frame(&mut f).unwrap() {
+            seen.push(f.index);
+            assert!(f.arrival.is_some());
+            std::thread::sleep(Duration::from_millis(20)); // 4x slower than the source
+        }
+        let dropped = p.stats().dropped();
+        assert!(dropped > 20, "dropped {dropped}");
+        assert_eq!(seen.len() as u64 + dropped, 60);
+        assert!(seen.windows(2).all(|w| w[1] > w[0]));
+        // Newest frames are kept: the last frame is always delivered.
+        assert_eq!(*seen.last().unwrap(), 59);
+    }
+
+    #[test]
+    fn real_time_releases_at_timestamps() {
+        let c = Counter::new(10, 100.0);
+        let mut p = PacedSource::spawn(c, Pacing::RealTime { speed: 1.0 }).unwrap();
+        let mut f = Frame::new(4, 2);
+        let t = Instant::now();
+        let mut n = 0;
+        while let FrameStatus::Ready = p.next_frame(&mut f).unwrap() {
+            n += 1;
+        }
+        assert_eq!(n, 10);
+        assert!(t.elapsed() >= Duration::from_millis(85), "{:?}", t.elapsed());
+    }
+
+    #[test]
+    fn dropping_mid_stream_joins_the_thread() {
+        let c = Counter::new(1_000_000, 1000.0);
+        let mut p = PacedSource::spawn(c, Pacing::AsFastAsPossible).unwrap();
+        let mut f = Frame::new(4, 2);
+        p.next_frame(&mut f).unwrap();
+        drop(p); // must not hang
+    }
+}
