@@ -1,1 +1,10 @@
+//! sdslam: real-time monocular ORB SLAM with probabilistic semi-dense mapping.
+//!
+//! The core (everything but [`io`]) does no file or device IO: frames come in as buffers from
+//! [`sdslam_camera`] sources, poses and clouds go out as values.
 
+pub mod camera_model;
+
+pub use sdslam_camera as camera;
+pub mod eval;
+pub mod geometry;

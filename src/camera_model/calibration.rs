@@ -1,0 +1,394 @@
+//! Calibration files: ORB-SLAM-style YAML (`Camera.fx` ...) and EuRoC `sensor.yaml`.
+//!
+//! Parsing is pure (text in, typed calibration or a [`CalibError`] naming file, line and
+//! field out); reading the file is the caller's (`io`) job.
+
+use super::yaml::{self, YamlEntry, YamlValue};
+use super::PinholeRadtan;
+
+/// A camera calibration as `sdslam run` needs it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Calibration {
+    pub camera: PinholeRadtan,
+    /// Nominal frame rate; deadlines default to 1/fps.
+    pub fps: f64,
+}
+
+/// A calibration problem, naming the file, line (when known) and field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{file}{}: {}{message}", .line.map(|l| format!(":{l}")).unwrap_or_default(), .field.as_ref().map(|f| format!("field `{f}`: ")).unwrap_or_default())]
+pub struct CalibError {
+    pub file: String,
+    pub line: Option<usize>,
+    pub field: Option<String>,
+    pub message: String,
+}
+
+/// ORB-SLAM keys that are accepted but do not affect the camera model.
+const ORBSLAM_IGNORED: &[&str] = &[
+    "Camera.type",
+    "Camera.RGB",
+    "Camera.bf",
+    "ThDepth",
+    "DepthMapFactor",
+    "File.version",
+    "ORBextractor.nFeatures",
+    "ORBextractor.scaleFactor",
+    "ORBextractor.nLevels",
+    "ORBextractor.iniThFAST",
+    "ORBextractor.minThFAST",
+];
+
+const EUROC_IGNORED: &[&str] = &["sensor_type", "comment", "camera_model", "distortion_model"];
+
+struct Fields<'a> {
+    file: &'a str,
+    entries: Vec<YamlEntry>,
+}
+
+impl<'a> Fields<'a> {
+    fn err(&self, line: Option<usize>, field: &str, msg: impl Into<String>) -> CalibError {
+        CalibError {
+            file: self.file.to_string(),
+            line,
+            field: Some(field.to_string()),
+            message: msg.into(),
+        }
+    }
+
+    fn get(&self, key: &str) -> Option<&YamlEntry> {
+        self.entries.iter().find(|e| e.key == key)
+    }
+
+    fn number_of(&self, e: &YamlEntry, s: &str) -> Result<f64, CalibError> {
+        let v: f64 = s
+            .trim()
+            .parse()
+            .map_err(|_| self.err(Some(e.line), &e.key, format!("{s:?} is not a number")))?;
+        if !v.is_finite() {
+            return Err(self.err(Some(e.line), &e.key, format!("{s:?} is not finite")));
+        }
+        Ok(v)
+    }
+
+    fn scalar(&self, key: &str) -> Result<Option<f64>, CalibError> {
+        let Some(e) = self.get(key) else { return Ok(None) };
+        match &e.value {
+            YamlValue::Scalar(s) => Ok(Some(self.number_of(e, s)?)),
+            _ => Err(self.err(Some(e.line), key, "expected a number")),
+        }
+    }
+
+    fn required(&self, keys: &[&str]) -> Result<f64, CalibError> {
+        for k in keys {
+            if let Some(v) = self.scalar(k)? {
+                return Ok(v);
+            }
+        }
+        Err(self.err(None, keys[0], "missing"))
+    }
+
+    fn seq(&self, key: &str, len: std::ops::RangeInclusive<usize>) -> Result<Vec<f64>, CalibError> {
+        let e = self.get(key).ok_or_else(|| self.err(None, key, "missing"))?;
+        let YamlValue::Seq(items) = &e.value else {
+            return Err(self.err(Some(e.line), key, "expected a list [a, b, ...]"));
+        };
+        if !len.contains(&items.len()) {
+            return Err(self.err(
+                Some(e.line),
+                key,
+                format!("expected {}..={} values, found {}", len.start(), len.end(), items.len()),
+            ));
+        }
+        items.iter().map(|s| self.number_of(e, s)).collect()
+    }
+
+    fn size(&self, key: &str, v: f64, line: Option<usize>) -> Result<u32, CalibError> {
+        if v < 1.0 || v.fract() != 0.0 || v > 65535.0 {
+            return Err(self.err(line, key, format!("{v} is not a positive whole number of pixels")));
+        }
+        Ok(v as u32)
+    }
+}
+
+fn line_of(f: &Fields, keys: &[&str]) -> Option<usize> {
+    keys.iter().find_map(|k| f.get(k).map(|e| e.line))
+}
+
+fn syntax(file: &str, e: yaml::YamlSyntaxError) -> CalibError {
+    CalibError {
+        file: file.to_string(),
+        line: Some(e.line),
+        field: None,
+        message: e.message,
+    }
+}
+
+impl Calibration {
+    /// Parses either layout, recognised by its keys (`intrinsics` means EuRoC).
+    pub fn parse(text: &str, file: &str) -> Result<Self, CalibError> {
+        let entries = yaml::parse(text).map_err(|e| syntax(file, e))?;
+        let f = Fields { file, entries };
+        if f.get("intrinsics").is_some() || f.get("sensor_type").is_some() {
+            Self::from_euroc(&f)
+        } else {
+            Self::from_orbslam(&f)
+        }
+    }
+
+    fn from_orbslam(f: &Fields) -> Result<Self, CalibError> {
+        for e in &f.entries {
+            let k = e.key.as_str();
+            let camera_key = k
+                .strip_prefix("Camera.")
+                .or_else(|| k.strip_prefix("Camera1."))
+                .is_some_and(|r| {
+                    matches!(
+                        r,
+                        "fx" | "fy" | "cx" | "cy" | "k1" | "k2" | "p1" | "p2" | "k3" | "width" | "height" | "fps"
+                    )
+                });
+            if !(camera_key || ORBSLAM_IGNORED.contains(&k) || k.starts_with("Viewer.")) {
+                return Err(f.err(Some(e.line), k, "unknown key"));
+            }
+        }
+        if let Some(e) = f.get("Camera.type") {
+            if let YamlValue::Scalar(s) = &e.value {
+                if !s.eq_ignore_ascii_case("pinhole") {
+                    return Err(f.err(
+                        Some(e.line),
+                        "Camera.type",
+                        format!("{s:?} is not supported (only PinHole with radial-tangential distortion)"),
+                    ));
+                }
+            }
+        }
+        let g = |n: &str| -> Result<f64, CalibError> {
+            f.required(&[&format!("Camera.{n}"), &format!("Camera1.{n}")])
+        };
+        let opt = |n: &str| -> Result<f64, CalibError> {
+            Ok(f.scalar(&format!("Camera.{n}"))?
+                .or(f.scalar(&format!("Camera1.{n}"))?)
+                .unwrap_or(0.0))
+        };
+        let width = f.size("Camera.width", g("width")?, line_of(f, &["Camera.width", "Camera1.width"]))?;
+        let height = f.size("Camera.height", g("height")?, line_of(f, &["Camera.height", "Camera1.height"]))?;
+        let camera = PinholeRadtan {
+            fx: g("fx")?,
+            fy: g("fy")?,
+            cx: g("cx")?,
+            cy: g("cy")?,
+            k1: opt("k1")?,
+            k2: opt("k2")?,
+            p1: opt("p1")?,
+            p2: opt("p2")?,
+            k3: opt("k3")?,
+            width,
+            height,
+        };
+        let fps = f.scalar("Camera.fps")?.or(f.scalar("Camera1.fps")?).unwrap_or(30.0);
+        let calib = Calibration { camera, fps };
+        calib.validate(f, |n| {
+            let keys = [format!("Camera.{n}"), format!("Camera1.{n}")];
+            let ks: Vec<&str> = keys.iter().map(|s| s.as_str()).collect();
+            (format!("Camera.{n}"), line_of(f, &ks))
+        })?;
+        Ok(calib)
+    }
+
+    fn from_euroc(f: &Fields) -> Result<Self, CalibError> {
+        for e in &f.entries {
+            let k = e.key.as_str();
+            let known = matches!(k, "intrinsics" | "distortion_coefficients" | "resolution" | "rate_hz")
+                || k == "T_BS"
+                || k.starts_with("T_BS/")
+                || EUROC_IGNORED.contains(&k);
+            if !known {
+                return Err(f.err(Some(e.line), k, "unknown key"));
+            }
+        }
+        if let Some(e) = f.get("camera_model") {
+            if e.value != YamlValue::Scalar("pinhole".into()) {
+                return Err(f.err(Some(e.line), "camera_model", "only `pinhole` is supported"));
+            }
+        }
+        if let Some(e) = f.get("distortion_model") {
+            let ok = matches!(&e.value, YamlValue::Scalar(s) if s == "radial-tangential" || s == "radtan");
+            if !ok {
+                return Err(f.err(Some(e.line), "distortion_model", "only `radial-tangential` is supported"));
+            }
+        }
+        let k = f.seq("intrinsics", 4..=4)?;
+        let d = f.seq("distortion_coefficients", 4..=5)?;
+        let r = f.seq("resolution", 2..=2)?;
+        let rline = f.get("resolution").map(|e| e.line);
+        let camera = PinholeRadtan {
+            fx: k[0],
+            fy: k[1],
+            cx: k[2],
+            cy: k[3],
+            k1: d[0],
+            k2: d[1],
+            p1: d[2],
+            p2: d[3],
+            k3: d.get(4).copied().unwrap_or(0.0),
+            width: f.size("resolution", r[0], rline)?,
+            height: f.size("resolution", r[1], rline)?,
+        };
+        let fps = f.scalar("rate_hz")?.unwrap_or(20.0);
+        let calib = Calibration { camera, fps };
+        calib.validate(f, |n| {
+            let key = match n {
+                "fx" | "fy" | "cx" | "cy" => "intrinsics",
+                "fps" => "rate_hz",
+                _ => "distortion_coefficients",
+            };
+            (key.to_string(), f.get(key).map(|e| e.line))
+        })?;
+        Ok(calib)
+    }
+
+    /// Physical sanity: positive focal lengths and frame rate, principal point inside the image.
+    fn validate(
+        &self,
+        f: &Fields,
+        locate: impl Fn(&str) -> (String, Option<usize>),
+    ) -> Result<(), CalibError> {
+        let c = &self.camera;
+        let fail = |n: &str, m: String| {
+            let (k, l) = locate(n);
+            Err(f.err(l, &k, m))
+        };
+        if c.fx <= 0.0 {
+            return fail("fx", format!("focal length {} must be positive", c.fx));
+        }
+        if c.fy <= 0.0 {
+            return fail("fy", format!("focal length {} must be positive", c.fy));
+        }
+        if c.cx < 0.0 || c.cx > c.width as f64 {
+            return fail("cx", format!("principal point {} lies outside the image width {}", c.cx, c.width));
+        }
+        if c.cy < 0.0 || c.cy > c.height as f64 {
+            return fail("cy", format!("principal point {} lies outside the image height {}", c.cy, c.height));
+        }
+        if self.fps <= 0.0 {
+            return fail("fps", format!("frame rate {} must be positive", self.fps));
+        }
+        Ok(())
+    }
+
+    /// Checks that images of `width` x `height` fit this calibration.
+    pub fn check_image_size(&self, width: u32, height: u32, file: &str) -> Result<(), CalibError> {
+        if (width, height) != (self.camera.width, self.camera.height) {
+            return Err(CalibError {
+                file: file.to_string(),
+                line: None,
+                field: Some("Camera.width/Camera.height".into()),
+                message: format!(
+                    "calibration is for {}x{} images but the source gives {width}x{height}",
+                    self.camera.width, self.camera.height
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// Writes the ORB-SLAM layout (what `sdslam calibrate` produces and `sdslam run` reads).
+    pub fn to_orbslam_yaml(&self, comment: &str) -> String {
+        let c = &self.camera;
+        let mut s = String::from("%YAML:1.0\n");
+        for l in comment.lines() {
+            s.push_str(&format!("# {l}\n"));
+        }
+        s.push_str("Camera.type: \"PinHole\"\n");
+        for (k, v) in [("fx", c.fx), ("fy", c.fy), ("cx", c.cx), ("cy", c.cy), ("k1", c.k1), ("k2", c.k2), ("p1", c.p1), ("p2", c.p2), ("k3", c.k3)] {
+            s.push_str(&format!("Camera.{k}: {v:?}\n"));
+        }
+        s.push_str(&format!(
+            "Camera.width: {}\nCamera.height: {}\nCamera.fps: {:?}\n",
+            c.width, c.height, self.fps
+        ));
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DESK: &str = "%YAML:1.0\n# Pinhole\nCamera.type: \"PinHole\"\nCamera.fx: 520.0\nCamera.fy: 520.0\nCamera.cx: 319.5\nCamera.cy: 239.5\nCamera.k1: 0.0\nCamera.k2: 0.0\nCamera.p1: 0.0\nCamera.p2: 0.0\nCamera.width: 640\nCamera.height: 480\nCamera.fps: 30.0\nCamera.RGB: 1\nDepthMapFactor: 5000.0\n";
+
+    #[test]
+    fn parses_orbslam_file() {
+        let c = Calibration::parse(DESK, "camera.yaml").unwrap();
+        assert_eq!(c.camera.fx, 520.0);
+        assert_eq!(c.camera.width, 640);
+        assert_eq!(c.fps, 30.0);
+        assert!(c.camera.is_distortion_free());
+    }
+
+    #[test]
+    fn round_trips_through_writer() {
+        let c = Calibration::parse(DESK, "a").unwrap();
+        let d = Calibration::parse(&c.to_orbslam_yaml("test"), "b").unwrap();
+        assert_eq!(c, d);
+    }
+
+    fn err_of(text: &str) -> String {
+        Calibration::parse(text, "cam.yaml").unwrap_err().to_string()
+    }
+
+    #[test]
+    fn unknown_key_names_line_and_field() {
+        let e = err_of(&format!("{DESK}Camera.fz: 3\n"));
+        assert!(e.contains("cam.yaml:17") && e.contains("Camera.fz") && e.contains("unknown"), "{e}");
+    }
+
+    #[test]
+    fn missing_field_is_named() {
+        let e = err_of(&DESK.replace("Camera.fy: 520.0\n", ""));
+        assert!(e.contains("Camera.fy") && e.contains("missing"), "{e}");
+    }
+
+    #[test]
+    fn non_positive_focal_and_nan_are_rejected() {
+        let e = err_of(&DESK.replace("Camera.fx: 520.0", "Camera.fx: -1"));
+        assert!(e.contains("cam.yaml:4") && e.contains("Camera.fx") && e.contains("positive"), "{e}");
+        let e = err_of(&DESK.replace("Camera.fx: 520.0", "Camera.fx: 0"));
+        assert!(e.contains("positive"), "{e}");
+        let e = err_of(&DESK.replace("Camera.k1: 0.0", "Camera.k1: .nan"));
+        assert!(e.contains("Camera.k1") && e.contains(":8"), "{e}");
+        let e = err_of(&DESK.replace("Camera.k1: 0.0", "Camera.k1: NaN"));
+        assert!(e.contains("Camera.k1") && e.contains("finite"), "{e}");
+        let e = err_of(&DESK.replace("Camera.width: 640", "Camera.width: 64.5"));
+        assert!(e.contains("Camera.width"), "{e}");
+    }
+
+    #[test]
+    fn image_size_mismatch_is_clear() {
+        let c = Calibration::parse(DESK, "a").unwrap();
+        let e = c.check_image_size(752, 480, "calib/x.yaml").unwrap_err().to_string();
+        assert!(e.contains("calib/x.yaml") && e.contains("640x480") && e.contains("752x480"), "{e}");
+    }
+
+    const EUROC: &str = "%YAML:1.0\nsensor_type: camera\ncomment: VI-Sensor cam0 (MT9M034)\nT_BS:\n  cols: 4\n  rows: 4\n  data: [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975,\n         0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768,\n        -0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949,\n         0.0, 0.0, 0.0, 1.0]\nrate_hz: 20\nresolution: [752, 480]\ncamera_model: pinhole\nintrinsics: [458.654, 457.296, 367.215, 248.375] #fu, fv, cu, cv\ndistortion_model: radial-tangential\ndistortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]\n";
+
+    #[test]
+    fn parses_euroc_sensor_yaml() {
+        let c = Calibration::parse(EUROC, "sensor.yaml").unwrap();
+        assert_eq!(c.camera.fx, 458.654);
+        assert_eq!(c.camera.k1, -0.28340811);
+        assert_eq!((c.camera.width, c.camera.height), (752, 480));
+        assert_eq!(c.fps, 20.0);
+    }
+
+    #[test]
+    fn euroc_errors_name_fields() {
+        let e = Calibration::parse(&EUROC.replace("[458.654, 457.296, 367.215, 248.375]", "[458.654, 457.296]"), "s.yaml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("intrinsics") && e.contains("s.yaml:14"), "{e}");
+        let e = Calibration::parse(&EUROC.replace("pinhole", "omni"), "s.yaml").unwrap_err().to_string();
+        assert!(e.contains("camera_model"), "{e}");
+    }
+}
