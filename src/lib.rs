@@ -8,3 +8,12 @@ pub mod camera_model;
 pub use sdslam_camera as camera;
 pub mod eval;
 pub mod geometry;
+pub mod synthetic;
+pub mod error;
+pub mod io;
+
+pub use error::{Error, Result};
+pub mod config;
+pub mod runtime;
+
+pub use config::Config;

@@ -1,0 +1,48 @@
+//! Subcommands of `sdslam`.
+
+mod eval;
+mod run;
+mod source;
+mod synth;
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+
+use sdslam::Result;
+
+/// Real-time monocular ORB SLAM with probabilistic semi-dense mapping.
+///
+/// With no subcommand, `sdslam` runs on the built-in synthetic sequence (same as
+/// `sdslam run synthetic`).
+#[derive(Parser, Debug)]
+#[command(name = "sdslam", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run SLAM on a source and write trajectory.txt, keyframes.txt, semidense.ply and report.json.
+    Run(run::RunArgs),
+    /// Evaluate results against ground truth.
+    #[command(subcommand)]
+    Eval(eval::EvalCommand),
+    /// Render the built-in synthetic sequence to a TUM RGB-D folder (images, depth, ground truth).
+    Synth(synth::SynthArgs),
+}
+
+pub fn dispatch(cli: Cli) -> Result<()> {
+    match cli.command {
+        None => run::run(run::RunArgs::default_synthetic()),
+        Some(Command::Run(a)) => run::run(a),
+        Some(Command::Eval(e)) => eval::eval(e),
+        Some(Command::Synth(a)) => synth::synth(a),
+    }
+}
+
+/// Default output folder.
+fn default_out() -> PathBuf {
+    PathBuf::from("out")
+}

@@ -1,0 +1,190 @@
+//! Every tunable, with its published name and default. Loaded from TOML (`--config FILE`);
+//! unknown keys are rejected so a typo never silently falls back to a default.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// ORB extraction (Rublee et al. 2011; ORB-SLAM's defaults).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OrbConfig {
+    /// Features per 640x480 image.
+    pub n_features: usize,
+    /// Pyramid scale factor between levels.
+    pub scale_factor: f64,
+    /// Pyramid levels.
+    pub n_levels: usize,
+    /// FAST threshold, then the fallback for cells with no corner.
+    pub ini_th_fast: u8,
+    pub min_th_fast: u8,
+}
+
+impl Default for OrbConfig {
+    fn default() -> Self {
+        OrbConfig {
+            n_features: 1000,
+            scale_factor: 1.2,
+            n_levels: 8,
+            ini_th_fast: 20,
+            min_th_fast: 7,
+        }
+    }
+}
+
+/// Semi-dense mapping (Mur-Artal & Tardós, RSS 2015, section III).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SemiDenseConfig {
+    pub enabled: bool,
+    /// N: covisible keyframes searched per keyframe.
+    pub n_neighbours: usize,
+    /// sigma_I: intensity noise, grey levels.
+    pub sigma_i: f64,
+    /// lambda_G: gradient modulus threshold (Scharr / 32, intensity per pixel).
+    pub lambda_g: f64,
+    /// lambda_L: maximum angle between gradient and epipolar line, degrees.
+    pub lambda_l_deg: f64,
+    /// lambda_theta: maximum gradient orientation difference, degrees.
+    pub lambda_theta_deg: f64,
+    /// lambda_N: compatible hypotheses needed.
+    pub lambda_n: usize,
+    /// theta: gradient-to-intensity noise variance ratio of the Scharr operator.
+    pub theta: f64,
+    /// Keyframes of delay before a keyframe is reconstructed.
+    pub keyframe_delay: usize,
+    /// Worker threads for per-pixel work.
+    pub threads: usize,
+}
+
+impl Default for SemiDenseConfig {
+    fn default() -> Self {
+        SemiDenseConfig {
+            enabled: true,
+            n_neighbours: 7,
+            sigma_i: 20.0,
+            lambda_g: 8.0,
+            lambda_l_deg: 80.0,
+            lambda_theta_deg: 45.0,
+            lambda_n: 3,
+            theta: 0.23,
+            keyframe_delay: 10,
+            threads: 2,
+        }
+    }
+}
+
+/// Real-time behaviour.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RuntimeConfig {
+    /// Per-frame budget in milliseconds; `None` means 1/fps of the source.
+    pub deadline_ms: Option<f64>,
+    /// Real-time replay speed (1.0 = recorded rate).
+    pub realtime_speed: f64,
+}
+
+impl Default for RuntimeConfig {
+    fn default() -> Self {
+        RuntimeConfig {
+            deadline_ms: None,
+            realtime_speed: 1.0,
+        }
+    }
+}
+
+/// The whole configuration.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    pub orb: OrbConfig,
+    pub semidense: SemiDenseConfig,
+    pub runtime: RuntimeConfig,
+}
+
+impl Config {
+    /// Parses TOML text; `path` names the file in errors (with line and column).
+    pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        let cfg: Config = toml::from_str(text).map_err(|e| Error::Config {
+            path: path.to_path_buf(),
+            message: {
+                let loc = e.span().map(|s| {
+                    let line = text[..s.start.min(text.len())].matches('\n').count() + 1;
+                    format!("line {line}: ")
+                });
+                format!("{}{}", loc.unwrap_or_default(), e.message())
+            },
+        })?;
+        cfg.validate(path)?;
+        Ok(cfg)
+    }
+
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::parse(&text, path)
+    }
+
+    fn validate(&self, path: &Path) -> Result<()> {
+        let bad = |field: &str, why: &str| {
+            Err(Error::Config {
+                path: path.to_path_buf(),
+                message: format!("field `{field}`: {why}"),
+            })
+        };
+        if self.orb.scale_factor <= 1.0 || !self.orb.scale_factor.is_finite() {
+            return bad("orb.scale_factor", "must be a finite number > 1");
+        }
+        if self.orb.n_levels == 0 || self.orb.n_levels > 16 {
+            return bad("orb.n_levels", "must be in 1..=16");
+        }
+        if self.orb.n_features == 0 {
+            return bad("orb.n_features", "must be positive");
+        }
+        if self.orb.min_th_fast > self.orb.ini_th_fast {
+            return bad("orb.min_th_fast", "must not exceed orb.ini_th_fast");
+        }
+        let sd = &self.semidense;
+        if sd.sigma_i <= 0.0 || sd.theta <= 0.0 || sd.lambda_g < 0.0 {
+            return bad("semidense", "sigma_i and theta must be positive, lambda_g non-negative");
+        }
+        if sd.n_neighbours == 0 || sd.lambda_n == 0 || sd.threads == 0 {
+            return bad("semidense", "n_neighbours, lambda_n and threads must be positive");
+        }
+        if let Some(d) = self.runtime.deadline_ms {
+            if d <= 0.0 || !d.is_finite() {
+                return bad("runtime.deadline_ms", "must be a positive number");
+            }
+        }
+        if self.runtime.realtime_speed <= 0.0 || !self.runtime.realtime_speed.is_finite() {
+            return bad("runtime.realtime_speed", "must be a positive number");
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_published_parameters() {
+        let c = Config::default();
+        assert_eq!((c.orb.n_features, c.orb.n_levels, c.orb.ini_th_fast, c.orb.min_th_fast), (1000, 8, 20, 7));
+        assert_eq!(c.semidense.n_neighbours, 7);
+        assert_eq!(c.semidense.lambda_n, 3);
+        assert_eq!(c.semidense.theta, 0.23);
+    }
+
+    #[test]
+    fn partial_file_overrides_and_unknown_keys_fail() {
+        let c = Config::parse("[orb]\nn_features = 2000\n", Path::new("c.toml")).unwrap();
+        assert_eq!(c.orb.n_features, 2000);
+        assert_eq!(c.orb.n_levels, 8);
+        let e = Config::parse("[orb]\nn_feature = 2000\n", Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("c.toml") && e.contains("line 2") && e.contains("n_feature"), "{e}");
+        let e = Config::parse("[orb]\nscale_factor = 0.5\n", Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("orb.scale_factor"), "{e}");
+    }
+}

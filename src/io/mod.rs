@@ -1,0 +1,46 @@
+//! File IO at the edge of the library: calibration files, trajectories, images, reports.
+//! Every output is written atomically (temporary file + rename), so a crash never leaves a
+//! half-written file behind.
+
+mod atomic;
+mod images;
+mod ply;
+mod trajectory;
+
+pub use atomic::{write_atomic, write_json_atomic};
+pub use images::{write_depth_png, write_rgb_png};
+pub use ply::{decode_ply, encode_ply, write_ply, CloudPoint};
+pub use trajectory::{parse_tum_trajectory, read_tum_trajectory, write_tum_trajectory, tum_trajectory_text};
+
+use std::path::Path;
+
+use crate::camera_model::Calibration;
+use crate::error::{Error, Result};
+
+/// Reads and parses a calibration file (ORB-SLAM YAML or EuRoC `sensor.yaml`).
+pub fn load_calibration(path: &Path) -> Result<Calibration> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    Ok(Calibration::parse(&text, &path.display().to_string())?)
+}
+
+/// Creates `dir` (and parents) and checks it can be written, before any work is done.
+pub fn prepare_output_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let probe = dir.join(".sdslam-write-test");
+    std::fs::write(&probe, b"").map_err(|e| Error::io(dir, e))?;
+    let _ = std::fs::remove_file(probe);
+    Ok(())
+}
+
+/// Peak resident memory of this process in MiB (Linux `VmHWM`); 0 where unavailable.
+pub fn peak_rss_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("VmHWM:"))
+                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+        })
+        .map(|kb| kb / 1024.0)
+        .unwrap_or(0.0)
+}

@@ -1,0 +1,45 @@
+//! `report.json`: what a run did and how long each stage took. Key names are a stable contract.
+
+use serde::Serialize;
+
+use super::Percentiles;
+
+/// Per-stage timing percentiles (milliseconds).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TimingReport {
+    /// Frame available -> pose out.
+    pub tracking: Percentiles,
+    pub orb_extraction: Percentiles,
+    pub local_ba: Percentiles,
+    pub loop_closing: Percentiles,
+    pub semidense_keyframe: Percentiles,
+    pub semidense_depth: Percentiles,
+    pub semidense_intra: Percentiles,
+    pub semidense_inter: Percentiles,
+}
+
+/// The run report.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Report {
+    pub sdslam_version: String,
+    pub source: String,
+    /// Frames delivered to tracking.
+    pub frames: usize,
+    pub tracked_frames: usize,
+    pub lost_episodes: usize,
+    pub keyframes: usize,
+    pub map_points: usize,
+    pub loops_closed: usize,
+    pub relocalisations: usize,
+    /// Frames the source could not read (corrupt/unreadable images), skipped.
+    pub skipped_frames: usize,
+    pub deadline_misses: usize,
+    /// Frames lost to real-time pacing because tracking was behind.
+    pub dropped_frames: u64,
+    pub peak_rss_mb: f64,
+    pub deadline_ms: f64,
+    pub wall_time_s: f64,
+    /// Why the run ended early, if it did (error or interruption); outputs are still written.
+    pub stopped_early: Option<String>,
+    pub timing_ms: TimingReport,
+}
