@@ -147,10 +147,16 @@ impl Config {
         }
         let sd = &self.semidense;
         if sd.sigma_i <= 0.0 || sd.theta <= 0.0 || sd.lambda_g < 0.0 {
-            return bad("semidense", "sigma_i and theta must be positive, lambda_g non-negative");
+            return bad(
+                "semidense",
+                "sigma_i and theta must be positive, lambda_g non-negative",
+            );
         }
         if sd.n_neighbours == 0 || sd.lambda_n == 0 || sd.threads == 0 {
-            return bad("semidense", "n_neighbours, lambda_n and threads must be positive");
+            return bad(
+                "semidense",
+                "n_neighbours, lambda_n and threads must be positive",
+            );
         }
         if let Some(d) = self.runtime.deadline_ms {
             if d <= 0.0 || !d.is_finite() {
@@ -171,7 +177,15 @@ mod tests {
     #[test]
     fn defaults_are_the_published_parameters() {
         let c = Config::default();
-        assert_eq!((c.orb.n_features, c.orb.n_levels, c.orb.ini_th_fast, c.orb.min_th_fast), (1000, 8, 20, 7));
+        assert_eq!(
+            (
+                c.orb.n_features,
+                c.orb.n_levels,
+                c.orb.ini_th_fast,
+                c.orb.min_th_fast
+            ),
+            (1000, 8, 20, 7)
+        );
         assert_eq!(c.semidense.n_neighbours, 7);
         assert_eq!(c.semidense.lambda_n, 3);
         assert_eq!(c.semidense.theta, 0.23);
@@ -182,9 +196,16 @@ mod tests {
         let c = Config::parse("[orb]\nn_features = 2000\n", Path::new("c.toml")).unwrap();
         assert_eq!(c.orb.n_features, 2000);
         assert_eq!(c.orb.n_levels, 8);
-        let e = Config::parse("[orb]\nn_feature = 2000\n", Path::new("c.toml")).unwrap_err().to_string();
-        assert!(e.contains("c.toml") && e.contains("line 2") && e.contains("n_feature"), "{e}");
-        let e = Config::parse("[orb]\nscale_factor = 0.5\n", Path::new("c.toml")).unwrap_err().to_string();
+        let e = Config::parse("[orb]\nn_feature = 2000\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("c.toml") && e.contains("line 2") && e.contains("n_feature"),
+            "{e}"
+        );
+        let e = Config::parse("[orb]\nscale_factor = 0.5\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("orb.scale_factor"), "{e}");
     }
 }

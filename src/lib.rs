@@ -6,11 +6,11 @@
 pub mod camera_model;
 
 pub use sdslam_camera as camera;
+pub mod error;
 pub mod eval;
 pub mod geometry;
-pub mod synthetic;
-pub mod error;
 pub mod io;
+pub mod synthetic;
 
 pub use error::{Error, Result};
 pub mod config;

@@ -81,15 +81,22 @@ impl ImageDecoderBuf {
         let total = dec.total_bytes() as usize;
         match color {
             ColorType::L8 => {
-                dec.read_image(&mut out.gray).map_err(|e| derr(e.to_string()))?;
+                dec.read_image(&mut out.gray)
+                    .map_err(|e| derr(e.to_string()))?;
                 out.has_color = false;
             }
             ColorType::Rgb8 => {
-                dec.read_image(&mut out.rgb).map_err(|e| derr(e.to_string()))?;
+                dec.read_image(&mut out.rgb)
+                    .map_err(|e| derr(e.to_string()))?;
                 out.has_color = true;
                 gray_from_rgb(out);
             }
-            ColorType::La8 | ColorType::Rgba8 | ColorType::L16 | ColorType::Rgb16 | ColorType::Rgba16 | ColorType::La16 => {
+            ColorType::La8
+            | ColorType::Rgba8
+            | ColorType::L16
+            | ColorType::Rgb16
+            | ColorType::Rgba16
+            | ColorType::La16 => {
                 self.scratch.resize(total, 0);
                 dec.read_image(&mut self.scratch)
                     .map_err(|e| derr(e.to_string()))?;

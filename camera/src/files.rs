@@ -30,7 +30,10 @@ fn read_text(path: &Path) -> Result<String, SourceError> {
 
 fn is_image(p: &Path) -> bool {
     matches!(
-        p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref(),
+        p.extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase())
+            .as_deref(),
         Some("png" | "jpg" | "jpeg")
     )
 }
@@ -85,8 +88,7 @@ impl ImageListSource {
         if images.is_empty() {
             return Err(SourceError::Invalid {
                 path: dir.to_path_buf(),
-                message: "folder holds no PNG/JPEG images and no rgb.txt or EuRoC data.csv"
-                    .into(),
+                message: "folder holds no PNG/JPEG images and no rgb.txt or EuRoC data.csv".into(),
             });
         }
         let ts_path = match timestamps {
@@ -118,7 +120,10 @@ impl ImageListSource {
                 return Err(SourceError::List {
                     path: list_path.to_path_buf(),
                     line: e.line,
-                    message: format!("names {} which does not exist", base.join(&e.file).display()),
+                    message: format!(
+                        "names {} which does not exist",
+                        base.join(&e.file).display()
+                    ),
                 });
             }
         }
@@ -191,7 +196,13 @@ impl ImageListSource {
 pub fn euroc_cam_dir(dir: &Path) -> Option<PathBuf> {
     ["", "cam0", "mav0/cam0"]
         .iter()
-        .map(|s| if s.is_empty() { dir.to_path_buf() } else { dir.join(s) })
+        .map(|s| {
+            if s.is_empty() {
+                dir.to_path_buf()
+            } else {
+                dir.join(s)
+            }
+        })
         .find(|d| d.join("data.csv").is_file() && d.join("data").is_dir())
 }
 
@@ -306,7 +317,10 @@ mod tests {
         let mut s = ImageListSource::open(d.path()).unwrap();
         let mut f = Frame::new(6, 4);
         s.next_frame(&mut f).unwrap();
-        assert!(matches!(s.next_frame(&mut f).unwrap(), FrameStatus::Skipped { .. }));
+        assert!(matches!(
+            s.next_frame(&mut f).unwrap(),
+            FrameStatus::Skipped { .. }
+        ));
     }
 
     #[test]
@@ -314,7 +328,10 @@ mod tests {
         let d = tum_dir(2);
         std::fs::remove_file(d.path().join("rgb/1.png")).unwrap();
         let e = ImageListSource::open(d.path()).err().unwrap().to_string();
-        assert!(e.contains("rgb.txt:3") && e.contains("does not exist"), "{e}");
+        assert!(
+            e.contains("rgb.txt:3") && e.contains("does not exist"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -322,9 +339,15 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let e = ImageListSource::open(d.path()).err().unwrap().to_string();
         assert!(e.contains("no PNG/JPEG"), "{e}");
-        let e = ImageListSource::open_tum(d.path()).err().unwrap().to_string();
+        let e = ImageListSource::open_tum(d.path())
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.contains("rgb.txt"), "{e}");
-        let e = ImageListSource::open(&d.path().join("nope")).err().unwrap().to_string();
+        let e = ImageListSource::open(&d.path().join("nope"))
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.contains("not a folder"), "{e}");
     }
 

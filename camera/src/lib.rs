@@ -17,5 +17,5 @@ pub mod source;
 pub use error::SourceError;
 pub use files::ImageListSource;
 pub use frame::Frame;
-pub use pacing::{Pacing, PacedSource, PacingStats};
+pub use pacing::{PacedSource, Pacing, PacingStats};
 pub use source::{FrameSource, FrameStatus, SourceInfo};

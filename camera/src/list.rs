@@ -30,7 +30,11 @@ fn parse_timestamp(tok: &str, path: &Path, line: usize) -> Result<f64, SourceErr
         .parse()
         .map_err(|_| list_err(path, line, format!("timestamp {tok:?} is not a number")))?;
     if !t.is_finite() {
-        return Err(list_err(path, line, format!("timestamp {tok:?} is not finite")));
+        return Err(list_err(
+            path,
+            line,
+            format!("timestamp {tok:?} is not finite"),
+        ));
     }
     Ok(t)
 }
@@ -70,7 +74,11 @@ pub fn parse_tum(text: &str, path: &Path) -> Result<Vec<ListEntry>, SourceError>
             return Err(list_err(path, line, "expected `timestamp filename`"));
         };
         if toks.next().is_some() {
-            return Err(list_err(path, line, "expected two fields: `timestamp filename`"));
+            return Err(list_err(
+                path,
+                line,
+                "expected two fields: `timestamp filename`",
+            ));
         }
         out.push(ListEntry {
             timestamp: parse_timestamp(ts, path, line)?,
@@ -135,7 +143,9 @@ pub fn parse_timestamps(
         if l.is_empty() || l.starts_with('#') {
             continue;
         }
-        let mut toks = l.split(|c: char| c.is_whitespace() || c == ',').filter(|t| !t.is_empty());
+        let mut toks = l
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|t| !t.is_empty());
         let Some(ts) = toks.next() else { continue };
         let file = toks.next();
         if toks.next().is_some() {
@@ -161,7 +171,10 @@ pub fn parse_timestamps(
                     return Err(list_err(
                         path,
                         line,
-                        format!("more timestamps than the {} images of the folder", images.len()),
+                        format!(
+                            "more timestamps than the {} images of the folder",
+                            images.len()
+                        ),
                     ))
                 }
             },
@@ -207,17 +220,26 @@ mod tests {
 
     #[test]
     fn tum_rejects_bad_numbers_with_line() {
-        let err = parse_tum("1.0 a.png\nabc b.png\n", p()).unwrap_err().to_string();
+        let err = parse_tum("1.0 a.png\nabc b.png\n", p())
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("rgb.txt:2"), "{err}");
         assert!(err.contains("not a number"), "{err}");
-        let err = parse_tum("1.0 a.png\nNaN b.png\n", p()).unwrap_err().to_string();
+        let err = parse_tum("1.0 a.png\nNaN b.png\n", p())
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("rgb.txt:2"), "{err}");
     }
 
     #[test]
     fn tum_rejects_backwards_and_repeated_time() {
-        let err = parse_tum("2.0 a.png\n1.0 b.png\n", p()).unwrap_err().to_string();
-        assert!(err.contains(":2:") && err.contains("does not increase"), "{err}");
+        let err = parse_tum("2.0 a.png\n1.0 b.png\n", p())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(":2:") && err.contains("does not increase"),
+            "{err}"
+        );
         assert!(parse_tum("2.0 a.png\n2.0 b.png\n", p()).is_err());
     }
 

@@ -61,7 +61,10 @@ pub const QUEUE_CAPACITY: usize = 2;
 
 impl PacedSource {
     /// Starts `source` on a thread named `source`.
-    pub fn spawn<S: FrameSource + 'static>(mut source: S, pacing: Pacing) -> Result<Self, SourceError> {
+    pub fn spawn<S: FrameSource + 'static>(
+        mut source: S,
+        pacing: Pacing,
+    ) -> Result<Self, SourceError> {
         let info = source.info().clone();
         let (tx, rx) = bounded::<Msg>(QUEUE_CAPACITY);
         // Pool: queue + one being filled + one spare, so the producer rarely waits.
@@ -137,7 +140,10 @@ fn produce<S: FrameSource>(
             Ok(FrameStatus::Ready) => {
                 if let Pacing::RealTime { speed } = pacing {
                     let t0 = *t0.get_or_insert(buf.timestamp);
-                    let due = start + Duration::from_secs_f64(((buf.timestamp - t0) / speed.max(1e-6)).max(0.0));
+                    let due = start
+                        + Duration::from_secs_f64(
+                            ((buf.timestamp - t0) / speed.max(1e-6)).max(0.0),
+                        );
                     let now = Instant::now();
                     if due > now {
                         std::thread::sleep(due - now);
@@ -311,7 +317,10 @@ mod tests {
             let i = self.i;
             self.i += 1;
             if self.skip == Some(i) {
-                return Ok(FrameStatus::Skipped { index: i, reason: "bad".into() });
+                return Ok(FrameStatus::Skipped {
+                    index: i,
+                    reason: "bad".into(),
+                });
             }
             out.gray.fill(i as u8);
             out.index = i;
@@ -374,7 +383,11 @@ mod tests {
             n += 1;
         }
         assert_eq!(n, 10);
-        assert!(t.elapsed() >= Duration::from_millis(85), "{:?}", t.elapsed());
+        assert!(
+            t.elapsed() >= Duration::from_millis(85),
+            "{:?}",
+            t.elapsed()
+        );
     }
 
     #[test]

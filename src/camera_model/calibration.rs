@@ -72,7 +72,9 @@ impl<'a> Fields<'a> {
     }
 
     fn scalar(&self, key: &str) -> Result<Option<f64>, CalibError> {
-        let Some(e) = self.get(key) else { return Ok(None) };
+        let Some(e) = self.get(key) else {
+            return Ok(None);
+        };
         match &e.value {
             YamlValue::Scalar(s) => Ok(Some(self.number_of(e, s)?)),
             _ => Err(self.err(Some(e.line), key, "expected a number")),
@@ -89,7 +91,9 @@ impl<'a> Fields<'a> {
     }
 
     fn seq(&self, key: &str, len: std::ops::RangeInclusive<usize>) -> Result<Vec<f64>, CalibError> {
-        let e = self.get(key).ok_or_else(|| self.err(None, key, "missing"))?;
+        let e = self
+            .get(key)
+            .ok_or_else(|| self.err(None, key, "missing"))?;
         let YamlValue::Seq(items) = &e.value else {
             return Err(self.err(Some(e.line), key, "expected a list [a, b, ...]"));
         };
@@ -97,7 +101,12 @@ impl<'a> Fields<'a> {
             return Err(self.err(
                 Some(e.line),
                 key,
-                format!("expected {}..={} values, found {}", len.start(), len.end(), items.len()),
+                format!(
+                    "expected {}..={} values, found {}",
+                    len.start(),
+                    len.end(),
+                    items.len()
+                ),
             ));
         }
         items.iter().map(|s| self.number_of(e, s)).collect()
@@ -105,7 +114,11 @@ impl<'a> Fields<'a> {
 
     fn size(&self, key: &str, v: f64, line: Option<usize>) -> Result<u32, CalibError> {
         if v < 1.0 || v.fract() != 0.0 || v > 65535.0 {
-            return Err(self.err(line, key, format!("{v} is not a positive whole number of pixels")));
+            return Err(self.err(
+                line,
+                key,
+                format!("{v} is not a positive whole number of pixels"),
+            ));
         }
         Ok(v as u32)
     }
@@ -145,7 +158,17 @@ impl Calibration {
                 .is_some_and(|r| {
                     matches!(
                         r,
-                        "fx" | "fy" | "cx" | "cy" | "k1" | "k2" | "p1" | "p2" | "k3" | "width" | "height" | "fps"
+                        "fx" | "fy"
+                            | "cx"
+                            | "cy"
+                            | "k1"
+                            | "k2"
+                            | "p1"
+                            | "p2"
+                            | "k3"
+                            | "width"
+                            | "height"
+                            | "fps"
                     )
                 });
             if !(camera_key || ORBSLAM_IGNORED.contains(&k) || k.starts_with("Viewer.")) {
@@ -171,8 +194,16 @@ impl Calibration {
                 .or(f.scalar(&format!("Camera1.{n}"))?)
                 .unwrap_or(0.0))
         };
-        let width = f.size("Camera.width", g("width")?, line_of(f, &["Camera.width", "Camera1.width"]))?;
-        let height = f.size("Camera.height", g("height")?, line_of(f, &["Camera.height", "Camera1.height"]))?;
+        let width = f.size(
+            "Camera.width",
+            g("width")?,
+            line_of(f, &["Camera.width", "Camera1.width"]),
+        )?;
+        let height = f.size(
+            "Camera.height",
+            g("height")?,
+            line_of(f, &["Camera.height", "Camera1.height"]),
+        )?;
         let camera = PinholeRadtan {
             fx: g("fx")?,
             fy: g("fy")?,
@@ -186,7 +217,10 @@ impl Calibration {
             width,
             height,
         };
-        let fps = f.scalar("Camera.fps")?.or(f.scalar("Camera1.fps")?).unwrap_or(30.0);
+        let fps = f
+            .scalar("Camera.fps")?
+            .or(f.scalar("Camera1.fps")?)
+            .unwrap_or(30.0);
         let calib = Calibration { camera, fps };
         calib.validate(f, |n| {
             let keys = [format!("Camera.{n}"), format!("Camera1.{n}")];
@@ -199,8 +233,10 @@ impl Calibration {
     fn from_euroc(f: &Fields) -> Result<Self, CalibError> {
         for e in &f.entries {
             let k = e.key.as_str();
-            let known = matches!(k, "intrinsics" | "distortion_coefficients" | "resolution" | "rate_hz")
-                || k == "T_BS"
+            let known = matches!(
+                k,
+                "intrinsics" | "distortion_coefficients" | "resolution" | "rate_hz"
+            ) || k == "T_BS"
                 || k.starts_with("T_BS/")
                 || EUROC_IGNORED.contains(&k);
             if !known {
@@ -215,7 +251,11 @@ impl Calibration {
         if let Some(e) = f.get("distortion_model") {
             let ok = matches!(&e.value, YamlValue::Scalar(s) if s == "radial-tangential" || s == "radtan");
             if !ok {
-                return Err(f.err(Some(e.line), "distortion_model", "only `radial-tangential` is supported"));
+                return Err(f.err(
+                    Some(e.line),
+                    "distortion_model",
+                    "only `radial-tangential` is supported",
+                ));
             }
         }
         let k = f.seq("intrinsics", 4..=4)?;
@@ -266,10 +306,22 @@ impl Calibration {
             return fail("fy", format!("focal length {} must be positive", c.fy));
         }
         if c.cx < 0.0 || c.cx > c.width as f64 {
-            return fail("cx", format!("principal point {} lies outside the image width {}", c.cx, c.width));
+            return fail(
+                "cx",
+                format!(
+                    "principal point {} lies outside the image width {}",
+                    c.cx, c.width
+                ),
+            );
         }
         if c.cy < 0.0 || c.cy > c.height as f64 {
-            return fail("cy", format!("principal point {} lies outside the image height {}", c.cy, c.height));
+            return fail(
+                "cy",
+                format!(
+                    "principal point {} lies outside the image height {}",
+                    c.cy, c.height
+                ),
+            );
         }
         if self.fps <= 0.0 {
             return fail("fps", format!("frame rate {} must be positive", self.fps));
@@ -301,7 +353,17 @@ impl Calibration {
             s.push_str(&format!("# {l}\n"));
         }
         s.push_str("Camera.type: \"PinHole\"\n");
-        for (k, v) in [("fx", c.fx), ("fy", c.fy), ("cx", c.cx), ("cy", c.cy), ("k1", c.k1), ("k2", c.k2), ("p1", c.p1), ("p2", c.p2), ("k3", c.k3)] {
+        for (k, v) in [
+            ("fx", c.fx),
+            ("fy", c.fy),
+            ("cx", c.cx),
+            ("cy", c.cy),
+            ("k1", c.k1),
+            ("k2", c.k2),
+            ("p1", c.p1),
+            ("p2", c.p2),
+            ("k3", c.k3),
+        ] {
             s.push_str(&format!("Camera.{k}: {v:?}\n"));
         }
         s.push_str(&format!(
@@ -335,13 +397,18 @@ mod tests {
     }
 
     fn err_of(text: &str) -> String {
-        Calibration::parse(text, "cam.yaml").unwrap_err().to_string()
+        Calibration::parse(text, "cam.yaml")
+            .unwrap_err()
+            .to_string()
     }
 
     #[test]
     fn unknown_key_names_line_and_field() {
         let e = err_of(&format!("{DESK}Camera.fz: 3\n"));
-        assert!(e.contains("cam.yaml:17") && e.contains("Camera.fz") && e.contains("unknown"), "{e}");
+        assert!(
+            e.contains("cam.yaml:17") && e.contains("Camera.fz") && e.contains("unknown"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -353,7 +420,10 @@ mod tests {
     #[test]
     fn non_positive_focal_and_nan_are_rejected() {
         let e = err_of(&DESK.replace("Camera.fx: 520.0", "Camera.fx: -1"));
-        assert!(e.contains("cam.yaml:4") && e.contains("Camera.fx") && e.contains("positive"), "{e}");
+        assert!(
+            e.contains("cam.yaml:4") && e.contains("Camera.fx") && e.contains("positive"),
+            "{e}"
+        );
         let e = err_of(&DESK.replace("Camera.fx: 520.0", "Camera.fx: 0"));
         assert!(e.contains("positive"), "{e}");
         let e = err_of(&DESK.replace("Camera.k1: 0.0", "Camera.k1: .nan"));
@@ -367,8 +437,14 @@ mod tests {
     #[test]
     fn image_size_mismatch_is_clear() {
         let c = Calibration::parse(DESK, "a").unwrap();
-        let e = c.check_image_size(752, 480, "calib/x.yaml").unwrap_err().to_string();
-        assert!(e.contains("calib/x.yaml") && e.contains("640x480") && e.contains("752x480"), "{e}");
+        let e = c
+            .check_image_size(752, 480, "calib/x.yaml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("calib/x.yaml") && e.contains("640x480") && e.contains("752x480"),
+            "{e}"
+        );
     }
 
     const EUROC: &str = "%YAML:1.0\nsensor_type: camera\ncomment: VI-Sensor cam0 (MT9M034)\nT_BS:\n  cols: 4\n  rows: 4\n  data: [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975,\n         0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768,\n        -0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949,\n         0.0, 0.0, 0.0, 1.0]\nrate_hz: 20\nresolution: [752, 480]\ncamera_model: pinhole\nintrinsics: [458.654, 457.296, 367.215, 248.375] #fu, fv, cu, cv\ndistortion_model: radial-tangential\ndistortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]\n";
@@ -384,11 +460,16 @@ mod tests {
 
     #[test]
     fn euroc_errors_name_fields() {
-        let e = Calibration::parse(&EUROC.replace("[458.654, 457.296, 367.215, 248.375]", "[458.654, 457.296]"), "s.yaml")
+        let e = Calibration::parse(
+            &EUROC.replace("[458.654, 457.296, 367.215, 248.375]", "[458.654, 457.296]"),
+            "s.yaml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("intrinsics") && e.contains("s.yaml:14"), "{e}");
+        let e = Calibration::parse(&EUROC.replace("pinhole", "omni"), "s.yaml")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("intrinsics") && e.contains("s.yaml:14"), "{e}");
-        let e = Calibration::parse(&EUROC.replace("pinhole", "omni"), "s.yaml").unwrap_err().to_string();
         assert!(e.contains("camera_model"), "{e}");
     }
 }

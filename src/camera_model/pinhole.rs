@@ -95,8 +95,7 @@ impl PinholeRadtan {
 
     /// Distorted pixel -> undistorted pixel (same K).
     pub fn undistort_pixel(&self, u: f64, v: f64) -> Vector2<f64> {
-        let (x, y) =
-            self.undistort_normalized((u - self.cx) / self.fx, (v - self.cy) / self.fy);
+        let (x, y) = self.undistort_normalized((u - self.cx) / self.fx, (v - self.cy) / self.fy);
         Vector2::new(self.fx * x + self.cx, self.fy * y + self.cy)
     }
 

@@ -27,12 +27,20 @@ impl RectifyMap {
                 if d.x < 0.0 || d.y < 0.0 || d.x > (w - 1) as f64 || d.y > (h - 1) as f64 {
                     continue;
                 }
-                let (x0, y0) = (d.x.floor().min((w.max(2) - 2) as f64), d.y.floor().min((h.max(2) - 2) as f64));
+                let (x0, y0) = (
+                    d.x.floor().min((w.max(2) - 2) as f64),
+                    d.y.floor().min((h.max(2) - 2) as f64),
+                );
                 let (fx, fy) = (d.x - x0, d.y - y0);
                 // 8-bit fractions per axis; the four products sum to exactly 65536.
                 let (wx, wy) = ((fx * 256.0).round() as u32, (fy * 256.0).round() as u32);
                 index[i] = y0 as u32 * w + x0 as u32;
-                weights[i] = [(256 - wx) * (256 - wy), wx * (256 - wy), (256 - wx) * wy, wx * wy];
+                weights[i] = [
+                    (256 - wx) * (256 - wy),
+                    wx * (256 - wy),
+                    (256 - wx) * wy,
+                    wx * wy,
+                ];
             }
         }
         RectifyMap {
@@ -71,7 +79,8 @@ impl RectifyMap {
                 } else {
                     let i = i as usize;
                     let s = |j: usize| src[3 * j + c] as u32;
-                    let v = wt[0] * s(i) + wt[1] * s(i + 1) + wt[2] * s(i + w) + wt[3] * s(i + w + 1);
+                    let v =
+                        wt[0] * s(i) + wt[1] * s(i + 1) + wt[2] * s(i + w) + wt[3] * s(i + w + 1);
                     ((v + 32768) >> 16) as u8
                 };
             }

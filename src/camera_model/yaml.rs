@@ -73,10 +73,16 @@ pub fn parse(text: &str) -> Result<Vec<YamlEntry>, YamlSyntaxError> {
             continue;
         }
         if raw.contains('\t') {
-            return Err(err(line_no, "tab characters are not allowed for indentation"));
+            return Err(err(
+                line_no,
+                "tab characters are not allowed for indentation",
+            ));
         }
         if t.starts_with("- ") || t == "-" {
-            return Err(err(line_no, "block sequences (`- item`) are not supported; use [a, b, c]"));
+            return Err(err(
+                line_no,
+                "block sequences (`- item`) are not supported; use [a, b, c]",
+            ));
         }
         let indent = raw.len() - raw.trim_start().len();
         let Some((k, v)) = t.split_once(':') else {
@@ -101,7 +107,10 @@ pub fn parse(text: &str) -> Result<Vec<YamlEntry>, YamlSyntaxError> {
         let mut v = v.trim();
         if v.starts_with("!!") {
             // Type tags such as `!!opencv-matrix`: the value follows the tag.
-            v = v.split_once(char::is_whitespace).map(|(_, r)| r.trim()).unwrap_or("");
+            v = v
+                .split_once(char::is_whitespace)
+                .map(|(_, r)| r.trim())
+                .unwrap_or("");
         }
         let value = if v.is_empty() {
             parents.push((indent, k));

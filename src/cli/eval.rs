@@ -45,7 +45,10 @@ pub fn eval(cmd: EvalCommand) -> Result<()> {
                 ))
             })?;
             if a.json {
-                println!("{}", serde_json::to_string(&r).map_err(|e| Error::Invalid(e.to_string()))?);
+                println!(
+                    "{}",
+                    serde_json::to_string(&r).map_err(|e| Error::Invalid(e.to_string()))?
+                );
             } else {
                 println!("matched    {} poses ({} unmatched)", r.matched, r.unmatched);
                 println!("ATE rmse   {:.6} m", r.rmse_m);

@@ -81,7 +81,9 @@ pub fn run(a: RunArgs) -> Result<()> {
         info.width,
         info.height,
         info.fps,
-        info.len.map(|n| format!(", {n} frames")).unwrap_or_default(),
+        info.len
+            .map(|n| format!(", {n} frames"))
+            .unwrap_or_default(),
         opened.calibration_name
     );
     let mut src: Box<dyn FrameSource> = if a.realtime && !a.deterministic {

@@ -23,7 +23,11 @@ pub struct OpenedSource {
 /// Opens SOURCE: `synthetic` (or none), `v4l2:/dev/videoN`, a TUM folder, a EuRoC folder, or an
 /// image folder with a timestamps file. A TUM folder's `camera.yaml` and EuRoC's
 /// `sensor.yaml` are used when `calib` is not given.
-pub fn open(spec: Option<&str>, calib: Option<&Path>, frames: Option<usize>) -> Result<OpenedSource> {
+pub fn open(
+    spec: Option<&str>,
+    calib: Option<&Path>,
+    frames: Option<usize>,
+) -> Result<OpenedSource> {
     match spec {
         None | Some("synthetic") => {
             let mut cfg = SyntheticConfig::default();

@@ -38,7 +38,8 @@ pub fn synth(a: SynthArgs) -> Result<()> {
     }
     let mut frame = Frame::new(cfg.width, cfg.height);
     let mut depth = vec![0f32; frame.len()];
-    let mut rgb_txt = String::from("# color images\n# file: 'sdslam synthetic'\n# timestamp filename\n");
+    let mut rgb_txt =
+        String::from("# color images\n# file: 'sdslam synthetic'\n# timestamp filename\n");
     let mut depth_txt = String::from("# depth maps (planar depth, metres * 5000)\n# file: 'sdslam synthetic'\n# timestamp filename\n");
     for i in 0..cfg.frames {
         let with_depth = a.depth_every > 0 && i % a.depth_every == 0;
@@ -48,17 +49,30 @@ pub fn synth(a: SynthArgs) -> Result<()> {
             seq.render_frame(i, &mut frame);
         }
         let name = format!("{:.6}.png", frame.timestamp);
-        write_rgb_png(&a.out.join("rgb").join(&name), cfg.width, cfg.height, &frame.rgb)?;
+        write_rgb_png(
+            &a.out.join("rgb").join(&name),
+            cfg.width,
+            cfg.height,
+            &frame.rgb,
+        )?;
         let _ = writeln!(rgb_txt, "{:.6} rgb/{name}", frame.timestamp);
         if with_depth {
-            write_depth_png(&a.out.join("depth").join(&name), cfg.width, cfg.height, &depth, 5000.0)?;
+            write_depth_png(
+                &a.out.join("depth").join(&name),
+                cfg.width,
+                cfg.height,
+                &depth,
+                5000.0,
+            )?;
             let _ = writeln!(depth_txt, "{:.6} depth/{name}", frame.timestamp);
         }
     }
     write_atomic(&a.out.join("rgb.txt"), rgb_txt.as_bytes())?;
     write_atomic(&a.out.join("depth.txt"), depth_txt.as_bytes())?;
     write_tum_trajectory(&a.out.join("groundtruth.txt"), &seq.ground_truth())?;
-    let calib = cfg.calibration().to_orbslam_yaml("sdslam built-in synthetic camera (no distortion)");
+    let calib = cfg
+        .calibration()
+        .to_orbslam_yaml("sdslam built-in synthetic camera (no distortion)");
     write_atomic(&a.out.join("camera.yaml"), calib.as_bytes())?;
     println!("wrote {} frames to {}", cfg.frames, a.out.display());
     Ok(())

@@ -68,7 +68,12 @@ pub fn associate(gt: &[TimedPose], est: &[TimedPose], max_dt: f64) -> Vec<(usize
 
 /// ATE of `est` against `gt` (both sorted by time) after a 7-DoF alignment (6-DoF when
 /// `with_scale` is false). `None` when fewer than 3 poses match or they are degenerate.
-pub fn ate(gt: &[TimedPose], est: &[TimedPose], max_dt: f64, with_scale: bool) -> Option<AteResult> {
+pub fn ate(
+    gt: &[TimedPose],
+    est: &[TimedPose],
+    max_dt: f64,
+    with_scale: bool,
+) -> Option<AteResult> {
     let pairs = associate(gt, est, max_dt);
     let src: Vec<Vector3<f64>> = pairs.iter().map(|&(_, e)| est[e].t_wc.position()).collect();
     let dst: Vec<Vector3<f64>> = pairs.iter().map(|&(g, _)| gt[g].t_wc.position()).collect();

@@ -18,7 +18,13 @@ pub fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result
 }
 
 /// Writes a depth map (metres, 0 = none) as 16-bit PNG in metres x `factor` (TUM: 5000).
-pub fn write_depth_png(path: &Path, width: u32, height: u32, depth: &[f32], factor: f32) -> Result<()> {
+pub fn write_depth_png(
+    path: &Path,
+    width: u32,
+    height: u32,
+    depth: &[f32],
+    factor: f32,
+) -> Result<()> {
     let mut be = Vec::with_capacity(depth.len() * 2);
     for &d in depth {
         let v = if d.is_finite() && d > 0.0 {

@@ -10,7 +10,9 @@ mod trajectory;
 pub use atomic::{write_atomic, write_json_atomic};
 pub use images::{write_depth_png, write_rgb_png};
 pub use ply::{decode_ply, encode_ply, write_ply, CloudPoint};
-pub use trajectory::{parse_tum_trajectory, read_tum_trajectory, write_tum_trajectory, tum_trajectory_text};
+pub use trajectory::{
+    parse_tum_trajectory, read_tum_trajectory, tum_trajectory_text, write_tum_trajectory,
+};
 
 use std::path::Path;
 

@@ -53,8 +53,12 @@ pub fn decode_ply(bytes: &[u8], path: &Path) -> Result<Vec<CloudPoint>> {
         .ok_or_else(|| bad("no PLY end_header"))?
         + end.len();
     let header = std::str::from_utf8(&bytes[..hlen]).map_err(|_| bad("header is not text"))?;
-    if !header.starts_with("ply\nformat binary_little_endian 1.0\n") || !header.contains(HEADER_PROPS) {
-        return Err(bad("not an sdslam binary PLY (unexpected format or properties)"));
+    if !header.starts_with("ply\nformat binary_little_endian 1.0\n")
+        || !header.contains(HEADER_PROPS)
+    {
+        return Err(bad(
+            "not an sdslam binary PLY (unexpected format or properties)",
+        ));
     }
     let n: usize = header
         .lines()
@@ -62,8 +66,14 @@ pub fn decode_ply(bytes: &[u8], path: &Path) -> Result<Vec<CloudPoint>> {
         .and_then(|s| s.trim().parse().ok())
         .ok_or_else(|| bad("missing vertex count"))?;
     let body = &bytes[hlen..];
-    if body.len() != n.checked_mul(VERTEX_BYTES).ok_or_else(|| bad("vertex count overflows"))? {
-        return Err(bad(&format!("{} bytes of vertex data for {n} vertices", body.len())));
+    if body.len()
+        != n.checked_mul(VERTEX_BYTES)
+            .ok_or_else(|| bad("vertex count overflows"))?
+    {
+        return Err(bad(&format!(
+            "{} bytes of vertex data for {n} vertices",
+            body.len()
+        )));
     }
     let f32_at = |b: &[u8], o: usize| f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
     Ok(body
@@ -88,13 +98,27 @@ mod tests {
     #[test]
     fn round_trip_and_rejects_truncation() {
         let pts = vec![
-            CloudPoint { position: [1.0, -2.0, 3.5], rgb: [1, 2, 3], sigma: 0.01, timestamp: 1700000000.5 },
-            CloudPoint { position: [0.0, 0.0, 0.0], rgb: [255, 0, 9], sigma: 1.0, timestamp: 0.0 },
+            CloudPoint {
+                position: [1.0, -2.0, 3.5],
+                rgb: [1, 2, 3],
+                sigma: 0.01,
+                timestamp: 1700000000.5,
+            },
+            CloudPoint {
+                position: [0.0, 0.0, 0.0],
+                rgb: [255, 0, 9],
+                sigma: 1.0,
+                timestamp: 0.0,
+            },
         ];
         let b = encode_ply(&pts);
         assert_eq!(decode_ply(&b, Path::new("c.ply")).unwrap(), pts);
-        let e = decode_ply(&b[..b.len() - 3], Path::new("c.ply")).unwrap_err().to_string();
+        let e = decode_ply(&b[..b.len() - 3], Path::new("c.ply"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("c.ply"), "{e}");
-        assert!(decode_ply(&encode_ply(&[]), Path::new("e.ply")).unwrap().is_empty());
+        assert!(decode_ply(&encode_ply(&[]), Path::new("e.ply"))
+            .unwrap()
+            .is_empty());
     }
 }

@@ -23,9 +23,18 @@ pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Vec<TimedPose>> {
         if l.is_empty() || l.starts_with('#') {
             continue;
         }
-        let toks: Vec<&str> = l.split(|c: char| c.is_whitespace() || c == ',').filter(|t| !t.is_empty()).collect();
+        let toks: Vec<&str> = l
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|t| !t.is_empty())
+            .collect();
         if toks.len() != 8 {
-            return Err(err(line, format!("expected 8 fields `timestamp tx ty tz qx qy qz qw`, found {}", toks.len())));
+            return Err(err(
+                line,
+                format!(
+                    "expected 8 fields `timestamp tx ty tz qx qy qz qw`, found {}",
+                    toks.len()
+                ),
+            ));
         }
         let mut v = [0f64; 8];
         for (k, t) in toks.iter().enumerate() {
@@ -33,7 +42,12 @@ pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Vec<TimedPose>> {
                 .parse::<f64>()
                 .ok()
                 .filter(|x| x.is_finite())
-                .ok_or_else(|| err(line, format!("field {} ({t:?}) is not a finite number", k + 1)))?;
+                .ok_or_else(|| {
+                    err(
+                        line,
+                        format!("field {} ({t:?}) is not a finite number", k + 1),
+                    )
+                })?;
         }
         let q = Quaternion::new(v[7], v[4], v[5], v[6]);
         let n = q.norm();
@@ -42,7 +56,10 @@ pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Vec<TimedPose>> {
         }
         out.push(TimedPose {
             timestamp: v[0],
-            t_wc: WorldFromCamera::from_parts(Vector3::new(v[1], v[2], v[3]), UnitQuaternion::from_quaternion(q)),
+            t_wc: WorldFromCamera::from_parts(
+                Vector3::new(v[1], v[2], v[3]),
+                UnitQuaternion::from_quaternion(q),
+            ),
         });
     }
     out.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
@@ -81,7 +98,10 @@ mod tests {
     fn round_trip() {
         let poses = vec![TimedPose {
             timestamp: 1700000000.033333,
-            t_wc: WorldFromCamera::from_parts(Vector3::new(1.0, -2.0, 0.5), UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3)),
+            t_wc: WorldFromCamera::from_parts(
+                Vector3::new(1.0, -2.0, 0.5),
+                UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3),
+            ),
         }];
         let back = parse_tum_trajectory(&tum_trajectory_text(&poses), Path::new("t")).unwrap();
         assert!((back[0].timestamp - poses[0].timestamp).abs() < 1e-6);
@@ -91,11 +111,17 @@ mod tests {
 
     #[test]
     fn bad_lines_are_named() {
-        let e = parse_tum_trajectory("# h\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n", Path::new("gt.txt")).unwrap_err().to_string();
+        let e = parse_tum_trajectory("# h\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n", Path::new("gt.txt"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("gt.txt:3") && e.contains("8 fields"), "{e}");
-        let e = parse_tum_trajectory("1 0 0 x 0 0 0 1\n", Path::new("gt.txt")).unwrap_err().to_string();
+        let e = parse_tum_trajectory("1 0 0 x 0 0 0 1\n", Path::new("gt.txt"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("gt.txt:1") && e.contains("field 4"), "{e}");
-        let e = parse_tum_trajectory("1 0 0 0 0 0 0 3\n", Path::new("gt.txt")).unwrap_err().to_string();
+        let e = parse_tum_trajectory("1 0 0 0 0 0 0 3\n", Path::new("gt.txt"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("quaternion"), "{e}");
     }
 }

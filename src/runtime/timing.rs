@@ -85,7 +85,10 @@ mod tests {
             t.record_ms(i as f64);
         }
         let p = t.percentiles();
-        assert_eq!((p.p50, p.p90, p.p99, p.max, p.count), (50.0, 90.0, 99.0, 100.0, 100));
+        assert_eq!(
+            (p.p50, p.p90, p.p99, p.max, p.count),
+            (50.0, 90.0, 99.0, 100.0, 100)
+        );
     }
 
     #[test]

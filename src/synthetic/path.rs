@@ -70,7 +70,10 @@ mod tests {
         for i in (0..300).step_by(25) {
             let t_cw = p.pose(i).inverse();
             let c = t_cw.transform(&Vector3::new(0.0, 0.0, 0.8));
-            assert!(c.z > 0.5 && (c.x / c.z).abs() < 0.2 && (c.y / c.z).abs() < 0.2, "{i}: {c:?}");
+            assert!(
+                c.z > 0.5 && (c.x / c.z).abs() < 0.2 && (c.y / c.z).abs() < 0.2,
+                "{i}: {c:?}"
+            );
         }
     }
 }

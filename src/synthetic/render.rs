@@ -23,7 +23,12 @@ pub struct Renderer {
 }
 
 /// Sub-pixel sample offsets (rotated grid).
-const SAMPLES: [(f64, f64); 4] = [(-0.125, -0.375), (0.375, -0.125), (0.125, 0.375), (-0.375, 0.125)];
+const SAMPLES: [(f64, f64); 4] = [
+    (-0.125, -0.375),
+    (0.375, -0.125),
+    (0.125, 0.375),
+    (-0.375, 0.125),
+];
 
 /// No surface (a ray leaving the scene).
 const NO_HIT: u32 = u32::MAX;
@@ -40,7 +45,13 @@ impl Renderer {
 
     /// Renders the view from `t_wc` into `rgb` (w*h*3); with `depth` (w*h) also the planar
     /// depth of each pixel centre (metres, 0 = no surface). `frame` seeds the noise.
-    pub fn render(&self, t_wc: &WorldFromCamera, frame: u64, rgb: &mut [u8], depth: Option<&mut [f32]>) {
+    pub fn render(
+        &self,
+        t_wc: &WorldFromCamera,
+        frame: u64,
+        rgb: &mut [u8],
+        depth: Option<&mut [f32]>,
+    ) {
         let w = self.camera.width as usize;
         let o = t_wc.position();
         let rot = t_wc.0.rotation.to_rotation_matrix();
@@ -80,8 +91,8 @@ impl Renderer {
                     for (dx, dy) in SAMPLES {
                         let (d, _) = ray(x as f64 + dx, y as f64 + dy);
                         if let Some(hit) = self.scene.cast(&o, &d) {
-                            for k in 0..3 {
-                                acc[k] += hit.rgb[k] / SAMPLES.len() as f32;
+                            for (a, c) in acc.iter_mut().zip(hit.rgb) {
+                                *a += c / SAMPLES.len() as f32;
                             }
                         }
                     }

@@ -86,7 +86,12 @@ impl Scene {
         let mut min = Vector3::repeat(f64::INFINITY);
         let mut max = Vector3::repeat(f64::NEG_INFINITY);
         for q in &quads {
-            for c in [q.origin, q.origin + q.eu, q.origin + q.ev, q.origin + q.eu + q.ev] {
+            for c in [
+                q.origin,
+                q.origin + q.eu,
+                q.origin + q.ev,
+                q.origin + q.eu + q.ev,
+            ] {
                 min = min.inf(&c);
                 max = max.sup(&c);
             }
@@ -102,7 +107,16 @@ impl Scene {
     /// A box standing on z = `z0`, centred at (cx, cy), rotated by `yaw` about z; outward faces
     /// (the bottom is omitted: it is never seen).
     #[allow(clippy::too_many_arguments)]
-    fn add_box(&mut self, rng: &mut Rng, c: [f64; 3], size: [f64; 3], yaw: f64, tpm: f64, density: f64, contrast: f64) {
+    fn add_box(
+        &mut self,
+        rng: &mut Rng,
+        c: [f64; 3],
+        size: [f64; 3],
+        yaw: f64,
+        tpm: f64,
+        density: f64,
+        contrast: f64,
+    ) {
         let r = Rotation3::from_axis_angle(&Vector3::z_axis(), yaw);
         let (ex, ey, ez) = (
             r * Vector3::new(size[0], 0.0, 0.0),
@@ -129,15 +143,77 @@ impl Scene {
         // Room: floor (weakly textured), walls with posters' worth of texture, ceiling.
         let mut room = Vec::new();
         let v = |x: f64, y: f64, z: f64| Vector3::new(x, y, z);
-        s.quad(&mut room, v(-hx, -hy, 0.0), v(0.0, 2.0 * hy, 0.0), v(2.0 * hx, 0.0, 0.0), &mut rng, 120.0, 0.8, 0.35);
-        s.quad(&mut room, v(-hx, -hy, hz), v(2.0 * hx, 0.0, 0.0), v(0.0, 2.0 * hy, 0.0), &mut rng, 60.0, 0.5, 0.3);
-        s.quad(&mut room, v(-hx, -hy, 0.0), v(2.0 * hx, 0.0, 0.0), v(0.0, 0.0, hz), &mut rng, 150.0, 1.5, 0.8);
-        s.quad(&mut room, v(hx, hy, 0.0), v(-2.0 * hx, 0.0, 0.0), v(0.0, 0.0, hz), &mut rng, 150.0, 1.5, 0.8);
-        s.quad(&mut room, v(-hx, hy, 0.0), v(0.0, -2.0 * hy, 0.0), v(0.0, 0.0, hz), &mut rng, 150.0, 1.5, 0.8);
-        s.quad(&mut room, v(hx, -hy, 0.0), v(0.0, 2.0 * hy, 0.0), v(0.0, 0.0, hz), &mut rng, 150.0, 1.5, 0.8);
+        s.quad(
+            &mut room,
+            v(-hx, -hy, 0.0),
+            v(0.0, 2.0 * hy, 0.0),
+            v(2.0 * hx, 0.0, 0.0),
+            &mut rng,
+            120.0,
+            0.8,
+            0.35,
+        );
+        s.quad(
+            &mut room,
+            v(-hx, -hy, hz),
+            v(2.0 * hx, 0.0, 0.0),
+            v(0.0, 2.0 * hy, 0.0),
+            &mut rng,
+            60.0,
+            0.5,
+            0.3,
+        );
+        s.quad(
+            &mut room,
+            v(-hx, -hy, 0.0),
+            v(2.0 * hx, 0.0, 0.0),
+            v(0.0, 0.0, hz),
+            &mut rng,
+            150.0,
+            1.5,
+            0.8,
+        );
+        s.quad(
+            &mut room,
+            v(hx, hy, 0.0),
+            v(-2.0 * hx, 0.0, 0.0),
+            v(0.0, 0.0, hz),
+            &mut rng,
+            150.0,
+            1.5,
+            0.8,
+        );
+        s.quad(
+            &mut room,
+            v(-hx, hy, 0.0),
+            v(0.0, -2.0 * hy, 0.0),
+            v(0.0, 0.0, hz),
+            &mut rng,
+            150.0,
+            1.5,
+            0.8,
+        );
+        s.quad(
+            &mut room,
+            v(hx, -hy, 0.0),
+            v(0.0, 2.0 * hy, 0.0),
+            v(0.0, 0.0, hz),
+            &mut rng,
+            150.0,
+            1.5,
+            0.8,
+        );
         s.push(room);
         // Desk: a block 1.6 x 1.0 x 0.75.
-        s.add_box(&mut rng, [0.0, 0.0, 0.0], [1.6, 1.0, 0.75], 0.0, 260.0, 1.6, 0.85);
+        s.add_box(
+            &mut rng,
+            [0.0, 0.0, 0.0],
+            [1.6, 1.0, 0.75],
+            0.0,
+            260.0,
+            1.6,
+            0.85,
+        );
         // Objects on the desk.
         let top = 0.75;
         let items: [([f64; 2], [f64; 3], f64); 7] = [
@@ -153,10 +229,42 @@ impl Scene {
             s.add_box(&mut rng, [xy[0], xy[1], top], size, yaw, 320.0, 1.8, 0.9);
         }
         // Cabinets and boards around the room at several depths.
-        s.add_box(&mut rng, [2.2, 1.8, 0.0], [0.8, 0.5, 1.2], 0.4, 200.0, 1.5, 0.85);
-        s.add_box(&mut rng, [-2.3, -1.5, 0.0], [0.6, 0.9, 0.9], -0.3, 200.0, 1.5, 0.85);
-        s.add_box(&mut rng, [-1.9, 2.2, 0.0], [1.0, 0.4, 1.6], 0.1, 200.0, 1.5, 0.85);
-        s.add_box(&mut rng, [1.8, -2.3, 0.0], [0.5, 0.5, 0.7], 0.0, 200.0, 1.5, 0.85);
+        s.add_box(
+            &mut rng,
+            [2.2, 1.8, 0.0],
+            [0.8, 0.5, 1.2],
+            0.4,
+            200.0,
+            1.5,
+            0.85,
+        );
+        s.add_box(
+            &mut rng,
+            [-2.3, -1.5, 0.0],
+            [0.6, 0.9, 0.9],
+            -0.3,
+            200.0,
+            1.5,
+            0.85,
+        );
+        s.add_box(
+            &mut rng,
+            [-1.9, 2.2, 0.0],
+            [1.0, 0.4, 1.6],
+            0.1,
+            200.0,
+            1.5,
+            0.85,
+        );
+        s.add_box(
+            &mut rng,
+            [1.8, -2.3, 0.0],
+            [0.5, 0.5, 0.7],
+            0.0,
+            200.0,
+            1.5,
+            0.85,
+        );
         s
     }
 
@@ -213,10 +321,14 @@ mod tests {
         let s = Scene::desk(1);
         // Straight down from 2 m above the desk centre: desk top + the thin object on it
         // (0.75 + 0.05 high) at 1.2 m.
-        let h = s.cast(&Vector3::new(0.0, 0.0, 2.0), &Vector3::new(0.0, 0.0, -1.0)).unwrap();
+        let h = s
+            .cast(&Vector3::new(0.0, 0.0, 2.0), &Vector3::new(0.0, 0.0, -1.0))
+            .unwrap();
         assert!((h.t - 1.2).abs() < 1e-9, "{}", h.t);
         // Straight down in a free corner of the floor.
-        let h = s.cast(&Vector3::new(1.2, 1.0, 1.0), &Vector3::new(0.0, 0.0, -1.0)).unwrap();
+        let h = s
+            .cast(&Vector3::new(1.2, 1.0, 1.0), &Vector3::new(0.0, 0.0, -1.0))
+            .unwrap();
         assert!((h.t - 1.0).abs() < 1e-9, "{}", h.t);
         // Every ray from inside the room hits something.
         for k in 0..50 {

@@ -63,9 +63,19 @@ impl Texture {
     ///
     /// `density` is shapes per 1000 texels²; `contrast` in [0, 1] scales the shapes' colour
     /// difference from the base (low for a weakly textured floor).
-    pub fn generate(width: usize, height: usize, seed: u64, density: f64, contrast: f64) -> Texture {
+    pub fn generate(
+        width: usize,
+        height: usize,
+        seed: u64,
+        density: f64,
+        contrast: f64,
+    ) -> Texture {
         let mut rng = Rng::new(seed);
-        let base = [rng.range(70.0, 190.0), rng.range(70.0, 190.0), rng.range(70.0, 190.0)];
+        let base = [
+            rng.range(70.0, 190.0),
+            rng.range(70.0, 190.0),
+            rng.range(70.0, 190.0),
+        ];
         let mut texels = vec![[0f32; 3]; width * height];
         // Two octaves of value noise for low-frequency shading variation.
         let noise_seed = rng.next_u64();
@@ -102,7 +112,9 @@ impl Texture {
                 }
                 2 => {
                     let r = size * 0.6;
-                    fill(&mut texels, width, height, cx, cy, size, col, |dx, dy| dx * dx + dy * dy <= r * r);
+                    fill(&mut texels, width, height, cx, cy, size, col, |dx, dy| {
+                        dx * dx + dy * dy <= r * r
+                    });
                 }
                 _ => {
                     // Triangle.
@@ -110,9 +122,12 @@ impl Texture {
                     let b = [rng.range(-size, size), rng.range(-size, size)];
                     let c = [rng.range(-size, size), rng.range(-size, size)];
                     fill(&mut texels, width, height, cx, cy, size, col, |dx, dy| {
-                        let e = |p: [f64; 2], q: [f64; 2]| (q[0] - p[0]) * (dy - p[1]) - (q[1] - p[1]) * (dx - p[0]);
+                        let e = |p: [f64; 2], q: [f64; 2]| {
+                            (q[0] - p[0]) * (dy - p[1]) - (q[1] - p[1]) * (dx - p[0])
+                        };
                         let (d1, d2, d3) = (e(a, b), e(b, c), e(c, a));
-                        (d1 >= 0.0 && d2 >= 0.0 && d3 >= 0.0) || (d1 <= 0.0 && d2 <= 0.0 && d3 <= 0.0)
+                        (d1 >= 0.0 && d2 >= 0.0 && d3 >= 0.0)
+                            || (d1 <= 0.0 && d2 <= 0.0 && d3 <= 0.0)
                     });
                 }
             }
@@ -163,7 +178,8 @@ fn value_noise(x: f64, y: f64, seed: u64) -> f64 {
     let (xi, yi) = (x.floor() as i64, y.floor() as i64);
     let (fx, fy) = (x - xi as f64, y - yi as f64);
     let h = |i: i64, j: i64| {
-        (mix64(seed ^ (i as u64).wrapping_mul(0x1656_67B1) ^ (j as u64).wrapping_mul(0x27D4_EB2F)) >> 11) as f64
+        (mix64(seed ^ (i as u64).wrapping_mul(0x1656_67B1) ^ (j as u64).wrapping_mul(0x27D4_EB2F))
+            >> 11) as f64
             / (1u64 << 53) as f64
     };
     let s = |t: f64| t * t * (3.0 - 2.0 * t);
@@ -185,7 +201,12 @@ mod tests {
         let c = Texture::generate(64, 64, 8, 2.0, 0.8);
         assert_ne!(a.texels, c.texels);
         let mean = a.texels.iter().map(|t| t[0] as f64).sum::<f64>() / 4096.0;
-        let var = a.texels.iter().map(|t| (t[0] as f64 - mean).powi(2)).sum::<f64>() / 4096.0;
+        let var = a
+            .texels
+            .iter()
+            .map(|t| (t[0] as f64 - mean).powi(2))
+            .sum::<f64>()
+            / 4096.0;
         assert!(var > 100.0, "texture too flat: var {var}");
     }
 

@@ -1,0 +1,55 @@
+//! Frame input costs: JPEG decode into a reused frame, rectification of a distorted image,
+//! and one synthetic render.
+
+use std::io::Cursor;
+use std::path::Path;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use sdslam::camera::decode::ImageDecoderBuf;
+use sdslam::camera::Frame;
+use sdslam::camera_model::{PinholeRadtan, RectifyMap};
+use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
+
+fn frames(c: &mut Criterion) {
+    let seq = SyntheticSequence::new(SyntheticConfig {
+        frames: 10,
+        ..SyntheticConfig::default()
+    });
+    let mut f = Frame::new(640, 480);
+    seq.render_frame(0, &mut f);
+    let mut jpeg = Vec::new();
+    image::RgbImage::from_raw(640, 480, f.rgb.clone())
+        .expect("buffer size")
+        .write_to(&mut Cursor::new(&mut jpeg), image::ImageFormat::Jpeg)
+        .expect("encode");
+    let mut dec = ImageDecoderBuf::new();
+    let mut out = Frame::new(640, 480);
+    c.bench_function("decode_jpeg_640x480_into_frame", |b| {
+        b.iter(|| {
+            dec.decode(&jpeg, Path::new("bench.jpg"), Some((640, 480)), &mut out)
+                .expect("decode")
+        })
+    });
+    let cam = PinholeRadtan {
+        k1: 0.262383,
+        k2: -0.953104,
+        p1: -0.005358,
+        p2: 0.002628,
+        k3: 1.163314,
+        ..PinholeRadtan::pinhole(517.3, 516.5, 318.6, 255.3, 640, 480)
+    };
+    let map = RectifyMap::new(&cam);
+    let mut dst = vec![0u8; 640 * 480];
+    c.bench_function("rectify_gray_640x480", |b| {
+        b.iter(|| map.remap_gray(&f.gray, &mut dst))
+    });
+    let mut g = c.benchmark_group("synthetic");
+    g.sample_size(10);
+    g.bench_function("render_640x480", |b| {
+        b.iter(|| seq.render_frame(5, &mut out))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, frames);
+criterion_main!(benches);

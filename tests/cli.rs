@@ -1,0 +1,236 @@
+//! The command-line contract: outputs, report keys, evaluation, and clear errors on bad input.
+
+mod common;
+
+use common::sdslam;
+
+fn report(dir: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn run_on_synthetic_writes_every_output_with_stable_report_keys() {
+    let out = tempfile::tempdir().unwrap();
+    let (ok, _, err) = sdslam(&[
+        "run",
+        "synthetic",
+        "--frames",
+        "4",
+        "--out",
+        out.path().to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    for f in [
+        "trajectory.txt",
+        "keyframes.txt",
+        "semidense.ply",
+        "report.json",
+        "groundtruth.txt",
+    ] {
+        assert!(out.path().join(f).is_file(), "{f} missing");
+    }
+    let r = report(out.path());
+    for k in [
+        "frames",
+        "tracked_frames",
+        "lost_episodes",
+        "keyframes",
+        "map_points",
+        "loops_closed",
+        "relocalisations",
+        "skipped_frames",
+        "deadline_misses",
+        "dropped_frames",
+        "peak_rss_mb",
+    ] {
+        assert!(r.get(k).is_some(), "report.json lacks {k}");
+    }
+    for k in [
+        "tracking",
+        "orb_extraction",
+        "local_ba",
+        "loop_closing",
+        "semidense_keyframe",
+        "semidense_depth",
+        "semidense_intra",
+        "semidense_inter",
+    ] {
+        let t = &r["timing_ms"][k];
+        for p in ["p50", "p90", "p99", "max", "count"] {
+            assert!(t.get(p).is_some(), "timing_ms.{k}.{p} missing");
+        }
+    }
+    assert_eq!(r["frames"], 4);
+}
+
+#[test]
+fn eval_ate_json_on_known_transform() {
+    let d = tempfile::tempdir().unwrap();
+    let mut gt = String::new();
+    let mut est = String::new();
+    for i in 0..50 {
+        let t = i as f64 * 0.1;
+        let (x, y, z) = (t.cos(), t.sin(), 0.1 * t);
+        gt.push_str(&format!("{:.6} {x} {y} {z} 0 0 0 1\n", 100.0 + t));
+        // Estimate: scaled by 2, shifted, 5 ms later.
+        est.push_str(&format!(
+            "{:.6} {} {} {} 0 0 0 1\n",
+            100.005 + t,
+            2.0 * x + 1.0,
+            2.0 * y,
+            2.0 * z
+        ));
+    }
+    std::fs::write(d.path().join("gt.txt"), gt).unwrap();
+    std::fs::write(d.path().join("est.txt"), est).unwrap();
+    let (ok, out, err) = sdslam(&[
+        "eval",
+        "ate",
+        d.path().join("gt.txt").to_str().unwrap(),
+        d.path().join("est.txt").to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert!(v["rmse_m"].as_f64().unwrap() < 1e-5);
+    assert!((v["scale"].as_f64().unwrap() - 0.5).abs() < 1e-5);
+    assert_eq!(v["matched"], 50);
+    assert!(v.get("median_m").is_some() && v.get("max_m").is_some());
+}
+
+#[test]
+fn bad_inputs_give_clear_errors_without_panics() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    let outs = out.to_str().unwrap();
+    let check = |args: &[&str], needles: &[&str]| {
+        let (ok, _, err) = sdslam(args);
+        assert!(!ok, "{args:?} should fail");
+        assert!(
+            !err.contains("panicked") && !err.contains("RUST_BACKTRACE"),
+            "{err}"
+        );
+        for n in needles {
+            assert!(err.contains(n), "{args:?}: {err:?} lacks {n:?}");
+        }
+    };
+    // Empty folder.
+    let empty = d.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    check(
+        &["run", empty.to_str().unwrap(), "--out", outs],
+        &["empty", "no PNG/JPEG"],
+    );
+    // Nonexistent source.
+    check(
+        &["run", "/no/such/folder", "--out", outs],
+        &["/no/such/folder"],
+    );
+    // TUM folder with a list naming a missing image, and with time going backwards.
+    let tum = d.path().join("tum");
+    std::fs::create_dir_all(tum.join("rgb")).unwrap();
+    image::GrayImage::new(8, 8)
+        .save(tum.join("rgb/a.png"))
+        .unwrap();
+    std::fs::write(tum.join("rgb.txt"), "1.0 rgb/a.png\n2.0 rgb/missing.png\n").unwrap();
+    check(
+        &["run", tum.to_str().unwrap(), "--out", outs],
+        &["rgb.txt:2", "missing.png"],
+    );
+    std::fs::write(tum.join("rgb.txt"), "2.0 rgb/a.png\n1.0 rgb/a.png\n").unwrap();
+    check(
+        &["run", tum.to_str().unwrap(), "--out", outs],
+        &["rgb.txt:2", "does not increase"],
+    );
+    // No calibration available.
+    std::fs::write(tum.join("rgb.txt"), "1.0 rgb/a.png\n").unwrap();
+    check(&["run", tum.to_str().unwrap(), "--out", outs], &["--calib"]);
+    // Calibration with a bad field, and one for another image size.
+    let cal = d.path().join("cal.yaml");
+    std::fs::write(&cal, "%YAML:1.0\nCamera.fx: -5\nCamera.fy: 5\nCamera.cx: 4\nCamera.cy: 4\nCamera.width: 8\nCamera.height: 8\n").unwrap();
+    check(
+        &[
+            "run",
+            tum.to_str().unwrap(),
+            "--calib",
+            cal.to_str().unwrap(),
+            "--out",
+            outs,
+        ],
+        &["cal.yaml:2", "Camera.fx"],
+    );
+    std::fs::write(&cal, "%YAML:1.0\nCamera.fx: 5\nCamera.fy: 5\nCamera.cx: 4\nCamera.cy: 4\nCamera.width: 16\nCamera.height: 8\n").unwrap();
+    check(
+        &[
+            "run",
+            tum.to_str().unwrap(),
+            "--calib",
+            cal.to_str().unwrap(),
+            "--out",
+            outs,
+        ],
+        &["cal.yaml", "16x8", "8x8"],
+    );
+    // Unknown config key.
+    let cfg = d.path().join("c.toml");
+    std::fs::write(&cfg, "[orb]\nnfeatures = 3\n").unwrap();
+    check(
+        &[
+            "run",
+            "synthetic",
+            "--frames",
+            "1",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            outs,
+        ],
+        &["c.toml", "nfeatures"],
+    );
+    // Output folder that cannot be created.
+    let file = d.path().join("file");
+    std::fs::write(&file, "x").unwrap();
+    check(
+        &[
+            "run",
+            "synthetic",
+            "--frames",
+            "1",
+            "--out",
+            file.join("sub").to_str().unwrap(),
+        ],
+        &["file/sub"],
+    );
+    // Malformed trajectory for eval.
+    std::fs::write(d.path().join("bad.txt"), "1 2 3\n").unwrap();
+    let b = d.path().join("bad.txt");
+    check(
+        &["eval", "ate", b.to_str().unwrap(), b.to_str().unwrap()],
+        &["bad.txt:1", "8 fields"],
+    );
+}
+
+#[test]
+fn corrupt_frame_mid_sequence_is_skipped_and_counted() {
+    let d = tempfile::tempdir().unwrap();
+    let tum = d.path().join("tum");
+    std::fs::create_dir_all(tum.join("rgb")).unwrap();
+    let mut list = String::new();
+    for i in 0..4 {
+        let name = format!("rgb/{i}.png");
+        image::GrayImage::from_pixel(8, 8, image::Luma([i as u8 * 40]))
+            .save(tum.join(&name))
+            .unwrap();
+        list.push_str(&format!("{}.0 {name}\n", i + 1));
+    }
+    std::fs::write(tum.join("rgb/2.png"), b"\x89PNG truncated").unwrap();
+    std::fs::write(tum.join("rgb.txt"), list).unwrap();
+    std::fs::write(tum.join("camera.yaml"), "%YAML:1.0\nCamera.fx: 5\nCamera.fy: 5\nCamera.cx: 4\nCamera.cy: 4\nCamera.width: 8\nCamera.height: 8\n").unwrap();
+    let out = d.path().join("out");
+    let (ok, _, err) = sdslam(&["run", tum.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(err.contains("warning") && err.contains("2.png"), "{err}");
+    let r = report(&out);
+    assert_eq!(r["frames"], 3);
+    assert_eq!(r["skipped_frames"], 1);
+}

@@ -1,0 +1,40 @@
+//! Helpers shared by integration tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+/// `../shared/data` beside the checkout. In CI (`CI=true`) its absence fails the test loudly;
+/// elsewhere the test is skipped with a message.
+pub fn shared_data() -> Option<PathBuf> {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    if p.is_dir() {
+        return Some(p);
+    }
+    if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
+        panic!(
+            "../shared/data is missing: CI must provide it ({})",
+            p.display()
+        );
+    }
+    eprintln!("skipping: {} not found", p.display());
+    None
+}
+
+/// Path of the `sdslam` binary built for this test run.
+pub fn sdslam_bin() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_sdslam"))
+}
+
+/// Runs `sdslam ARGS`, returning (success, stdout, stderr).
+pub fn sdslam(args: &[&str]) -> (bool, String, String) {
+    let out = std::process::Command::new(sdslam_bin())
+        .args(args)
+        .env_remove("RUST_BACKTRACE")
+        .output()
+        .expect("run sdslam");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
