@@ -4,16 +4,17 @@
 //! [`sdslam_camera`] sources, poses and clouds go out as values.
 
 pub mod camera_model;
-
-pub use sdslam_camera as camera;
+pub mod config;
 pub mod error;
 pub mod eval;
+pub mod features;
 pub mod geometry;
+pub mod image;
 pub mod io;
+pub mod matching;
+pub mod runtime;
 pub mod synthetic;
 
-pub use error::{Error, Result};
-pub mod config;
-pub mod runtime;
-
 pub use config::Config;
+pub use error::{Error, Result};
+pub use sdslam_camera as camera;

@@ -1,0 +1,105 @@
+//! Steered BRIEF: 256 intensity comparisons between point pairs of a 31 x 31 patch of the
+//! blurred level, the pattern rotated by the keypoint angle.
+//!
+//! The pattern is sampled once, deterministically, from an isotropic Gaussian of standard
+//! deviation 31/5 clipped to the patch (Calonder et al.'s G II, the best of their untrained
+//! patterns); sdslam does not copy OpenCV's learned table.
+
+use std::sync::OnceLock;
+
+use crate::image::PaddedImage;
+
+/// A 256-bit binary descriptor.
+pub type Descriptor = [u64; 4];
+
+/// The 256 pairs (x1, y1, x2, y2), integer offsets in [-15, 15].
+pub fn pattern() -> &'static [[i8; 4]; 256] {
+    static P: OnceLock<[[i8; 4]; 256]> = OnceLock::new();
+    P.get_or_init(|| {
+        let mut state = 0x5DEE_CE66_D1CE_4E5Bu64;
+        let mut uniform = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let sigma = 31.0 / 5.0;
+        let mut gauss = move || loop {
+            // Box-Muller, rejecting samples outside the patch.
+            let (u1, u2) = (uniform(), uniform());
+            let g = (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos() * sigma;
+            let r = g.round();
+            if r.abs() <= 15.0 {
+                return r as i8;
+            }
+        };
+        let mut p = [[0i8; 4]; 256];
+        let mut i = 0;
+        while i < 256 {
+            let q = [gauss(), gauss(), gauss(), gauss()];
+            if (q[0], q[1]) != (q[2], q[3]) {
+                p[i] = q;
+                i += 1;
+            }
+        }
+        p
+    })
+}
+
+/// Computes the steered descriptor of the keypoint at level coordinates (x, y) with `angle` in
+/// degrees, sampling `blurred`.
+#[inline]
+pub fn describe(blurred: &PaddedImage, x: isize, y: isize, angle_deg: f32) -> Descriptor {
+    let (s, c) = angle_deg.to_radians().sin_cos();
+    let centre = blurred.idx(x, y) as isize;
+    let st = blurred.stride as isize;
+    let d = &blurred.data;
+    let at = |px: i8, py: i8| -> u8 {
+        let (px, py) = (px as f32, py as f32);
+        let rx = (px * c - py * s).round() as isize;
+        let ry = (px * s + py * c).round() as isize;
+        d[(centre + ry * st + rx) as usize]
+    };
+    let mut desc = [0u64; 4];
+    for (i, q) in pattern().iter().enumerate() {
+        if at(q[0], q[1]) < at(q[2], q[3]) {
+            desc[i >> 6] |= 1u64 << (i & 63);
+        }
+    }
+    desc
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pattern_is_deterministic_within_patch_and_balanced() {
+        let p = pattern();
+        assert!(p.iter().flatten().all(|&v| (-15..=15).contains(&v)));
+        let mean_x: f64 = p.iter().map(|q| q[0] as f64).sum::<f64>() / 256.0;
+        assert!(mean_x.abs() < 1.5, "{mean_x}");
+    }
+
+    #[test]
+    fn identical_patches_give_identical_descriptors() {
+        let (w, h) = (130usize, 70usize);
+        let mut data = vec![0u8; w * h];
+        let mut s = 9u64;
+        for v in data.iter_mut() {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+            *v = (s >> 56) as u8;
+        }
+        // Copy the 45 x 45 window around (30, 35) to around (80, 35): the rotated pattern
+        // reaches at most 15 * sqrt(2) < 22 pixels from the centre.
+        for y in 13..58 {
+            for x in 8..53 {
+                data[y * w + x + 50] = data[y * w + x];
+            }
+        }
+        let mut img = PaddedImage::new(w, h, 24);
+        img.copy_from(&data);
+        for a in [0.0f32, 33.0, 90.0, 271.5] {
+            assert_eq!(describe(&img, 30, 35, a), describe(&img, 80, 35, a), "angle {a}");
+        }
+        assert_ne!(describe(&img, 30, 35, 0.0), describe(&img, 31, 35, 0.0));
+    }
+}

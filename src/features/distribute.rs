@@ -1,0 +1,193 @@
+//! Quadtree distribution of corners (ORB-SLAM's scheme): split the level into nodes until there
+//! are as many nodes as wanted features, then keep the strongest corner of each node. Spreads
+//! features over the image instead of clustering them on the most textured object.
+//!
+//! Nodes hold ranges of one index array that splitting partitions in place, so the scratch
+//! vectors are reused from frame to frame without allocating.
+
+use super::fast::Corner;
+
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    x0: f32,
+    y0: f32,
+    x1: f32,
+    y1: f32,
+    start: u32,
+    end: u32,
+}
+
+impl Node {
+    fn len(&self) -> usize {
+        (self.end - self.start) as usize
+    }
+}
+
+/// Reusable scratch for [`distribute`].
+#[derive(Default)]
+pub struct QuadtreeScratch {
+    idx: Vec<u32>,
+    nodes: Vec<Node>,
+    next: Vec<Node>,
+}
+
+impl QuadtreeScratch {
+    pub fn with_capacity(corners: usize, nodes: usize) -> Self {
+        QuadtreeScratch {
+            idx: Vec::with_capacity(corners),
+            nodes: Vec::with_capacity(nodes * 4 + 16),
+            next: Vec::with_capacity(nodes * 4 + 16),
+        }
+    }
+}
+
+/// Partitions `idx[s..e]` so corners with `pred` true come first; returns the split point.
+fn partition(idx: &mut [u32], corners: &[Corner], s: usize, e: usize, pred: impl Fn(&Corner) -> bool) -> usize {
+    let mut i = s;
+    for j in s..e {
+        if pred(&corners[idx[j] as usize]) {
+            idx.swap(i, j);
+            i += 1;
+        }
+    }
+    i
+}
+
+/// Splits `n` into up to 4 non-empty children pushed to `out`.
+fn split(n: &Node, idx: &mut [u32], corners: &[Corner], out: &mut Vec<Node>) {
+    let mx = 0.5 * (n.x0 + n.x1);
+    let my = 0.5 * (n.y0 + n.y1);
+    let (s, e) = (n.start as usize, n.end as usize);
+    let ym = partition(idx, corners, s, e, |c| (c.y as f32) < my);
+    let xa = partition(idx, corners, s, ym, |c| (c.x as f32) < mx);
+    let xb = partition(idx, corners, ym, e, |c| (c.x as f32) < mx);
+    let kids = [
+        (n.x0, n.y0, mx, my, s, xa),
+        (mx, n.y0, n.x1, my, xa, ym),
+        (n.x0, my, mx, n.y1, ym, xb),
+        (mx, my, n.x1, n.y1, xb, e),
+    ];
+    for (x0, y0, x1, y1, a, b) in kids {
+        if b > a {
+            out.push(Node {
+                x0,
+                y0,
+                x1,
+                y1,
+                start: a as u32,
+                end: b as u32,
+            });
+        }
+    }
+}
+
+/// Selects about `wanted` corners spread over `[x0, x1) x [y0, y1)`: indices into `corners`,
+/// written to `selected` (cleared first).
+pub fn distribute(
+    corners: &[Corner],
+    (x0, y0, x1, y1): (f32, f32, f32, f32),
+    wanted: usize,
+    scratch: &mut QuadtreeScratch,
+    selected: &mut Vec<u32>,
+) {
+    selected.clear();
+    if corners.is_empty() || wanted == 0 {
+        return;
+    }
+    let QuadtreeScratch { idx, nodes, next } = scratch;
+    idx.clear();
+    idx.extend(0..corners.len() as u32);
+    nodes.clear();
+    // Initial nodes: roughly square, as many columns as the aspect ratio.
+    let (w, h) = (x1 - x0, y1 - y0);
+    let n_ini = ((w / h).round() as usize).max(1);
+    let hx = w / n_ini as f32;
+    let mut start = 0usize;
+    for i in 0..n_ini {
+        let (a, b) = (x0 + hx * i as f32, x0 + hx * (i + 1) as f32);
+        let last = i + 1 == n_ini;
+        let end = partition(idx, corners, start, corners.len(), |c| last || (c.x as f32) < b);
+        if end > start {
+            nodes.push(Node { x0: a, y0, x1: b, y1, start: start as u32, end: end as u32 });
+        }
+        start = end;
+    }
+    loop {
+        let before = nodes.len();
+        next.clear();
+        let mut splittable = 0;
+        for n in nodes.iter() {
+            if n.len() == 1 || (n.x1 - n.x0) < 1.0 {
+                next.push(*n);
+            } else {
+                let m = next.len();
+                split(n, idx, corners, next);
+                splittable += (next.len() - m > 1) as usize;
+            }
+        }
+        std::mem::swap(nodes, next);
+        if nodes.len() >= wanted || nodes.len() == before || splittable == 0 {
+            break;
+        }
+        // Close to the target: split the most populated nodes one by one.
+        if nodes.len() + splittable * 3 > wanted {
+            while nodes.len() < wanted {
+                nodes.sort_unstable_by_key(|n| std::cmp::Reverse(n.len()));
+                let Some(pos) = nodes.iter().position(|n| n.len() > 1 && (n.x1 - n.x0) >= 1.0) else { break };
+                let n = nodes.swap_remove(pos);
+                split(&n, idx, corners, nodes);
+            }
+            break;
+        }
+    }
+    for n in nodes.iter() {
+        let best = idx[n.start as usize..n.end as usize]
+            .iter()
+            .copied()
+            .max_by_key(|&i| corners[i as usize].score)
+            .unwrap_or(idx[n.start as usize]);
+        selected.push(best);
+    }
+    // Overshoot of the last split round: keep the strongest `wanted`.
+    if selected.len() > wanted {
+        selected.sort_unstable_by_key(|&i| std::cmp::Reverse(corners[i as usize].score));
+        selected.truncate(wanted);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spreads_clustered_corners_and_respects_count() {
+        // 2000 corners, 90% clustered in one corner of the image.
+        let mut corners = Vec::new();
+        let mut s = 1u64;
+        for i in 0..2000 {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let r = (s >> 33) as u32;
+            let (x, y) = if i % 10 == 0 { (r % 600, (r / 600) % 440) } else { (r % 100, (r / 100) % 100) };
+            corners.push(Corner { x: x as u16 + 20, y: y as u16 + 20, score: (r % 200) as u8 + 10 });
+        }
+        let mut scratch = QuadtreeScratch::with_capacity(2000, 300);
+        let mut sel = Vec::new();
+        distribute(&corners, (20.0, 20.0, 620.0, 460.0), 300, &mut scratch, &mut sel);
+        assert!(sel.len() <= 300 && sel.len() >= 250, "{}", sel.len());
+        let in_cluster = sel.iter().filter(|&&i| corners[i as usize].x < 120 && corners[i as usize].y < 120).count();
+        // The cluster covers ~4% of the area: most selected corners must lie outside it.
+        assert!(in_cluster < sel.len() / 2, "{in_cluster} of {}", sel.len());
+        let mut u = sel.clone();
+        u.sort();
+        u.dedup();
+        assert_eq!(u.len(), sel.len());
+    }
+
+    #[test]
+    fn fewer_corners_than_wanted_keeps_all() {
+        let corners: Vec<Corner> = (0..10).map(|i| Corner { x: 30 + i * 40, y: 50, score: 30 }).collect();
+        let mut sel = Vec::new();
+        distribute(&corners, (0.0, 0.0, 640.0, 480.0), 100, &mut QuadtreeScratch::default(), &mut sel);
+        assert_eq!(sel.len(), 10);
+    }
+}

@@ -1,0 +1,116 @@
+//! A grey image with a replicated border, so window operations near the edge (FAST circle,
+//! orientation patch, rotated BRIEF pattern) need no bounds checks.
+
+/// Row-major 8-bit image of `width` x `height` inside a border of `pad` pixels on every side.
+#[derive(Clone, Debug)]
+pub struct PaddedImage {
+    pub width: usize,
+    pub height: usize,
+    pub pad: usize,
+    /// `width + 2 * pad`.
+    pub stride: usize,
+    pub data: Vec<u8>,
+}
+
+impl PaddedImage {
+    /// Allocates a zeroed image.
+    pub fn new(width: usize, height: usize, pad: usize) -> Self {
+        let stride = width + 2 * pad;
+        PaddedImage {
+            width,
+            height,
+            pad,
+            stride,
+            data: vec![0; stride * (height + 2 * pad)],
+        }
+    }
+
+    /// Index of interior pixel (x, y); x and y may be negative down to `-pad`.
+    #[inline(always)]
+    pub fn idx(&self, x: isize, y: isize) -> usize {
+        ((y + self.pad as isize) as usize) * self.stride + (x + self.pad as isize) as usize
+    }
+
+    #[inline(always)]
+    pub fn at(&self, x: isize, y: isize) -> u8 {
+        self.data[self.idx(x, y)]
+    }
+
+    /// Interior row `y` (length `width`).
+    #[inline]
+    pub fn row(&self, y: usize) -> &[u8] {
+        let s = (y + self.pad) * self.stride + self.pad;
+        &self.data[s..s + self.width]
+    }
+
+    #[inline]
+    pub fn row_mut(&mut self, y: usize) -> &mut [u8] {
+        let s = (y + self.pad) * self.stride + self.pad;
+        &mut self.data[s..s + self.width]
+    }
+
+    /// Copies a tightly packed `width` x `height` image into the interior and fills the border.
+    pub fn copy_from(&mut self, src: &[u8]) {
+        let w = self.width;
+        for y in 0..self.height {
+            let s = &src[y * w..(y + 1) * w];
+            self.row_mut(y).copy_from_slice(s);
+        }
+        self.fill_border();
+    }
+
+    /// Fills the border by reflection about the edge pixel (OpenCV's BORDER_REFLECT_101), so
+    /// gradients at the edge stay continuous.
+    pub fn fill_border(&mut self) {
+        let (w, h, p, st) = (self.width, self.height, self.pad, self.stride);
+        if w < 2 || h < 2 {
+            return;
+        }
+        let reflect = |i: isize, n: usize| -> usize {
+            let n = n as isize;
+            let mut i = i;
+            // Reflect repeatedly for pads larger than the image.
+            loop {
+                if i < 0 {
+                    i = -i;
+                } else if i >= n {
+                    i = 2 * (n - 1) - i;
+                } else {
+                    return i as usize;
+                }
+            }
+        };
+        for y in 0..h {
+            let row = (y + p) * st;
+            for k in 1..=p {
+                let l = reflect(-(k as isize), w);
+                let r = reflect((w - 1 + k) as isize, w);
+                self.data[row + p - k] = self.data[row + p + l];
+                self.data[row + p + w - 1 + k] = self.data[row + p + r];
+            }
+        }
+        for k in 1..=p {
+            let top = reflect(-(k as isize), h) + p;
+            let bot = reflect((h - 1 + k) as isize, h) + p;
+            self.data.copy_within(top * st..(top + 1) * st, (p - k) * st);
+            self.data.copy_within(bot * st..(bot + 1) * st, (p + h - 1 + k) * st);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn border_reflects_without_repeating_the_edge() {
+        let mut im = PaddedImage::new(4, 3, 2);
+        im.copy_from(&[1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]);
+        assert_eq!(im.at(-1, 0), 2);
+        assert_eq!(im.at(-2, 0), 3);
+        assert_eq!(im.at(4, 0), 3);
+        assert_eq!(im.at(0, -1), 5);
+        assert_eq!(im.at(-1, -1), 6);
+        assert_eq!(im.at(3, 3), 8);
+    }
+}
