@@ -1,6 +1,7 @@
 //! Subcommands of `sdslam`.
 
 mod eval;
+mod features;
 mod run;
 mod source;
 mod synth;
@@ -29,6 +30,8 @@ enum Command {
     /// Evaluate results against ground truth.
     #[command(subcommand)]
     Eval(eval::EvalCommand),
+    /// Time ORB extraction on images (one thread): median time and feature count.
+    Features(features::FeaturesArgs),
     /// Render the built-in synthetic sequence to a TUM RGB-D folder (images, depth, ground truth).
     Synth(synth::SynthArgs),
 }
@@ -39,6 +42,7 @@ pub fn dispatch(cli: Cli) -> Result<()> {
         Some(Command::Run(a)) => run::run(a),
         Some(Command::Eval(e)) => eval::eval(e),
         Some(Command::Synth(a)) => synth::synth(a),
+        Some(Command::Features(a)) => features::features(a),
     }
 }
 

@@ -45,24 +45,31 @@ pub fn pattern() -> &'static [[i8; 4]; 256] {
 }
 
 /// Computes the steered descriptor of the keypoint at level coordinates (x, y) with `angle` in
-/// degrees, sampling `blurred`.
+/// degrees, sampling `blurred`. The pattern is rotated in 12-bit fixed point (rounding half up),
+/// all 512 offsets first, then the 256 comparisons.
 #[inline]
 pub fn describe(blurred: &PaddedImage, x: isize, y: isize, angle_deg: f32) -> Descriptor {
     let (s, c) = angle_deg.to_radians().sin_cos();
-    let centre = blurred.idx(x, y) as isize;
-    let st = blurred.stride as isize;
-    let d = &blurred.data;
-    let at = |px: i8, py: i8| -> u8 {
-        let (px, py) = (px as f32, py as f32);
-        let rx = (px * c - py * s).round() as isize;
-        let ry = (px * s + py * c).round() as isize;
-        d[(centre + ry * st + rx) as usize]
-    };
-    let mut desc = [0u64; 4];
-    for (i, q) in pattern().iter().enumerate() {
-        if at(q[0], q[1]) < at(q[2], q[3]) {
-            desc[i >> 6] |= 1u64 << (i & 63);
+    let (s, c) = ((s * 4096.0).round() as i32, (c * 4096.0).round() as i32);
+    let st = blurred.stride as i32;
+    let mut offs = [0i32; 512];
+    for (o, q) in offs.chunks_exact_mut(2).zip(pattern().iter()) {
+        for (k, off) in o.iter_mut().enumerate() {
+            let (px, py) = (q[2 * k] as i32, q[2 * k + 1] as i32);
+            let rx = (px * c - py * s + 2048) >> 12;
+            let ry = (px * s + py * c + 2048) >> 12;
+            *off = ry * st + rx;
         }
+    }
+    let centre = blurred.idx(x, y);
+    // Every rotated offset lies within 22 pixels of the centre, inside the padded image.
+    let win = &blurred.data[centre - 22 * blurred.stride - 22..centre + 22 * blurred.stride + 23];
+    let base = (22 * st + 22) as isize;
+    let mut desc = [0u64; 4];
+    for (i, pair) in offs.chunks_exact(2).enumerate() {
+        let a = win[(base + pair[0] as isize) as usize];
+        let b = win[(base + pair[1] as isize) as usize];
+        desc[i >> 6] |= ((a < b) as u64) << (i & 63);
     }
     desc
 }

@@ -14,8 +14,8 @@ use crate::image::{Pyramid, PyramidConfig};
 const MIN_BORDER: usize = 16;
 /// FAST threshold cells, level pixels (ORB-SLAM's 30 x 30).
 const CELL: usize = 30;
-/// Padding of pyramid levels: FAST's 16-lane loads and the rotated pattern (< 22 px).
-const PAD: usize = 24;
+/// Padding of pyramid levels: FAST's wide loads (3 + LANES) and the rotated pattern (< 22 px).
+const PAD: usize = 3 + super::fast::LANES;
 
 /// Features wanted per level: a geometric series over levels summing to `n` (ORB-SLAM's rule).
 pub fn features_per_level(n: usize, scale_factor: f64, levels: usize) -> Vec<usize> {
@@ -182,5 +182,29 @@ mod tests {
         assert_eq!(v.iter().sum::<usize>(), 1000);
         assert_eq!(v[0], 217);
         assert!(v.windows(2).take(6).all(|w| w[0] > w[1]));
+    }
+}
+#[cfg(test)]
+mod probe {
+    #[test]
+    #[ignore]
+    fn probe_counts() {
+        use crate::image::{Pyramid, PyramidConfig};
+        use crate::features::fast::*;
+        let img = image::open("../shared/data/synthetic/desk/rgb/1700000000.000000.jpg").unwrap().to_luma8();
+        let mut p = Pyramid::new(640, 480, PyramidConfig { levels: 8, scale_factor: 1.2, pad: 40 });
+        p.build(img.as_raw());
+        let mut tot = 0;
+        for l in 0..8 {
+            let lv = &p.levels[l];
+            let mut out = Vec::new();
+            let mut map = vec![0u8; lv.width * lv.height];
+            detect(lv, 20, (16, 16, lv.width - 16, lv.height - 16), &mut out, &mut map);
+            let n = out.len();
+            non_max_suppression(&mut out, &map, lv.width, lv.height);
+            eprintln!("level {l}: {n} corners, {} after nms, px {}", out.len(), lv.width * lv.height);
+            tot += n;
+        }
+        eprintln!("total {tot}");
     }
 }

@@ -27,59 +27,60 @@ pub const CIRCLE: [(isize, isize); 16] = [
     (-1, -3),
 ];
 
-type Lanes = [u8; 16];
+/// Pixels processed together: 32 lanes fill an AVX2 register (or two SSE/NEON registers).
+pub const LANES: usize = 32;
+
+type Lanes = [u8; LANES];
 
 #[inline(always)]
 fn load(data: &[u8], at: usize) -> Lanes {
-    let mut l = [0u8; 16];
-    l.copy_from_slice(&data[at..at + 16]);
+    let mut l = [0u8; LANES];
+    l.copy_from_slice(&data[at..at + LANES]);
     l
 }
 
 #[inline(always)]
-fn and(a: &Lanes, b: &Lanes) -> Lanes {
-    let mut o = [0u8; 16];
-    for i in 0..16 {
-        o[i] = a[i] & b[i];
+fn min(a: &Lanes, b: &Lanes) -> Lanes {
+    let mut o = [0u8; LANES];
+    for i in 0..LANES {
+        o[i] = a[i].min(b[i]);
     }
     o
 }
 
 #[inline(always)]
-fn or(a: &Lanes, b: &Lanes) -> Lanes {
-    let mut o = [0u8; 16];
-    for i in 0..16 {
-        o[i] = a[i] | b[i];
+fn max(a: &Lanes, b: &Lanes) -> Lanes {
+    let mut o = [0u8; LANES];
+    for i in 0..LANES {
+        o[i] = a[i].max(b[i]);
     }
     o
 }
 
+/// Per lane: the best (over the 16 cyclic arcs of 9) of the smallest difference on the arc.
+/// With `d[k]` the saturated difference of circle pixel k from the centre, a lane is a corner at
+/// threshold t exactly when the result exceeds t.
 #[inline(always)]
-fn any(a: &Lanes) -> bool {
-    u128::from_ne_bytes(*a) != 0
-}
-
-/// Lanes where 9 contiguous circle masks (cyclically) are all set.
-#[inline(always)]
-fn arc9(m: &[Lanes; 16]) -> Lanes {
-    let mut a2 = [[0u8; 16]; 16];
+fn best_arc_min(d: &[Lanes; 16]) -> Lanes {
+    let mut m2 = [[0u8; LANES]; 16];
     for k in 0..16 {
-        a2[k] = and(&m[k], &m[(k + 1) & 15]);
+        m2[k] = min(&d[k], &d[(k + 1) & 15]);
     }
-    let mut a4 = [[0u8; 16]; 16];
+    let mut m4 = [[0u8; LANES]; 16];
     for k in 0..16 {
-        a4[k] = and(&a2[k], &a2[(k + 2) & 15]);
+        m4[k] = min(&m2[k], &m2[(k + 2) & 15]);
     }
-    let mut acc = [0u8; 16];
+    let mut acc = [0u8; LANES];
     for k in 0..16 {
-        let a8 = and(&a4[k], &a4[(k + 4) & 15]);
-        acc = or(&acc, &and(&a8, &m[(k + 8) & 15]));
+        let m8 = min(&m4[k], &m4[(k + 4) & 15]);
+        acc = max(&acc, &min(&m8, &d[(k + 8) & 15]));
     }
     acc
 }
 
 /// Exact FAST score: the largest `t` for which the pixel is a corner (all 9 contiguous circle
-/// pixels brighter than `p + t` or darker than `p - t`, strictly); 0 if none.
+/// pixels brighter than `p + t` or darker than `p - t`, strictly); 0 if none. Scalar reference
+/// of what [`detect`] computes 16 pixels at a time.
 #[inline]
 pub fn corner_score(img: &PaddedImage, x: isize, y: isize) -> u8 {
     let p = img.at(x, y) as i16;
@@ -111,17 +112,37 @@ pub struct Corner {
     pub score: u8,
 }
 
-/// Detects every FAST-9 corner with score >= `threshold` inside `[x0, x1) x [y0, y1)` of `img`,
-/// appending to `out` with their scores, and writes scores into `score_map` (level-sized, zeroed
-/// by the caller) for non-maximum suppression.
-pub fn detect(
+/// Region of a level: `(x0, y0, x1, y1)`, end-exclusive.
+pub type Region = (usize, usize, usize, usize);
+
+/// Detects every FAST-9 corner with score >= `threshold` inside `region` of `img`, appending to
+/// `out` with their exact scores, and writes scores into `score_map` (level-sized, zeroed by
+/// the caller) for non-maximum suppression. Uses AVX2 when the CPU has it.
+pub fn detect(img: &PaddedImage, threshold: u8, region: Region, out: &mut Vec<Corner>, score_map: &mut [u8]) {
+    assert!(img.pad >= 3 + LANES, "FAST needs a border of 3 + LANES pixels for its wide loads");
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above); the function is otherwise safe.
+        unsafe { detect_avx2(img, threshold, region, out, score_map) };
+        return;
+    }
+    detect_lanes(img, threshold, region, out, score_map)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn detect_avx2(img: &PaddedImage, threshold: u8, region: Region, out: &mut Vec<Corner>, score_map: &mut [u8]) {
+    detect_lanes(img, threshold, region, out, score_map)
+}
+
+#[inline(always)]
+fn detect_lanes(
     img: &PaddedImage,
     threshold: u8,
-    (x0, y0, x1, y1): (usize, usize, usize, usize),
+    (x0, y0, x1, y1): Region,
     out: &mut Vec<Corner>,
     score_map: &mut [u8],
 ) {
-    assert!(img.pad >= 3 + 16, "FAST needs a border of 19 pixels for 16-lane loads");
     let offs: [isize; 16] = CIRCLE.map(|(dx, dy)| dy * img.stride as isize + dx);
     let t = threshold;
     for y in y0..y1 {
@@ -130,56 +151,49 @@ pub fn detect(
         while x < x1 {
             let at = row + x;
             let c = load(&img.data, at);
-            let mut hi = [0u8; 16];
-            let mut lo = [0u8; 16];
-            for i in 0..16 {
-                hi[i] = c[i].saturating_add(t);
-                lo[i] = c[i].saturating_sub(t);
-            }
             let ring = |k: usize| load(&img.data, (at as isize + offs[k]) as usize);
-            let mut b = [[0u8; 16]; 16];
-            let mut d = [[0u8; 16]; 16];
-            // Compass points first: an arc of 9 always covers two adjacent compass points.
+            // Compass test: an arc of 9 always covers two adjacent compass points, each beyond
+            // the threshold in the same direction. Rejects most chunks of flat image.
+            let mut bright = [[0u8; LANES]; 16];
+            let mut dark = [[0u8; LANES]; 16];
             for k in [0usize, 4, 8, 12] {
                 let r = ring(k);
-                for i in 0..16 {
-                    b[k][i] = if r[i] > hi[i] { 0xFF } else { 0 };
-                    d[k][i] = if r[i] < lo[i] { 0xFF } else { 0 };
+                for i in 0..LANES {
+                    bright[k][i] = r[i].saturating_sub(c[i]);
+                    dark[k][i] = c[i].saturating_sub(r[i]);
                 }
             }
             let pair = |m: &[Lanes; 16]| {
-                or(&or(&and(&m[0], &m[4]), &and(&m[4], &m[8])), &or(&and(&m[8], &m[12]), &and(&m[12], &m[0])))
+                max(&max(&min(&m[0], &m[4]), &min(&m[4], &m[8])), &max(&min(&m[8], &m[12]), &min(&m[12], &m[0])))
             };
-            let cand = or(&pair(&b), &pair(&d));
-            if any(&cand) {
+            let cand = max(&pair(&bright), &pair(&dark));
+            if cand.iter().any(|&v| v > t) {
                 for k in 0..16 {
                     if k % 4 == 0 {
                         continue;
                     }
                     let r = ring(k);
-                    for i in 0..16 {
-                        b[k][i] = if r[i] > hi[i] { 0xFF } else { 0 };
-                        d[k][i] = if r[i] < lo[i] { 0xFF } else { 0 };
+                    for i in 0..LANES {
+                        bright[k][i] = r[i].saturating_sub(c[i]);
+                        dark[k][i] = c[i].saturating_sub(r[i]);
                     }
                 }
-                let corners = or(&arc9(&b), &arc9(&d));
-                if any(&corners) {
-                    let lim = (x1 - x).min(16);
-                    for (i, &cv) in corners.iter().enumerate().take(lim) {
-                        if cv != 0 {
-                            let (cx, cy) = (x + i, y);
-                            let s = corner_score(img, cx as isize, cy as isize).max(t);
-                            score_map[cy * img.width + cx] = s;
-                            out.push(Corner {
-                                x: cx as u16,
-                                y: cy as u16,
-                                score: s,
-                            });
-                        }
+                let score = max(&best_arc_min(&bright), &best_arc_min(&dark));
+                let lim = (x1 - x).min(LANES);
+                for (i, &s) in score.iter().enumerate().take(lim) {
+                    if s > t {
+                        let (cx, cy) = (x + i, y);
+                        let s = s - 1;
+                        score_map[cy * img.width + cx] = s;
+                        out.push(Corner {
+                            x: cx as u16,
+                            y: cy as u16,
+                            score: s,
+                        });
                     }
                 }
             }
-            x += 16;
+            x += LANES;
         }
     }
 }
@@ -225,7 +239,7 @@ mod tests {
                 (s >> 56) as u8
             })
             .collect();
-        let mut img = PaddedImage::new(w, h, 24);
+        let mut img = PaddedImage::new(w, h, 40);
         img.copy_from(&data);
         img
     }
@@ -263,16 +277,32 @@ mod tests {
                 data[y * 64 + x] = 200;
             }
         }
-        // Blurred like a real image (a hard-edged synthetic corner ties every score).
-        let mut sharp = PaddedImage::new(64, 64, 24);
-        sharp.copy_from(&data);
-        let mut img = PaddedImage::new(64, 64, 24);
-        crate::image::gaussian_blur_7x7(&sharp, &mut img, &mut Vec::new());
+        let mut img = PaddedImage::new(64, 64, 40);
+        img.copy_from(&data);
         let mut out = Vec::new();
         let mut map = vec![0u8; 64 * 64];
         detect(&img, 20, (3, 3, 61, 61), &mut out, &mut map);
-        non_max_suppression(&mut out, &map, 64, 64);
-        assert!(out.iter().any(|c| (c.x as i32 - 32).abs() <= 2 && (c.y as i32 - 32).abs() <= 2), "{out:?}");
-        assert!(out.len() <= 3, "{out:?}");
+        let best = out.iter().map(|c| c.score).max().unwrap();
+        assert!(out.contains(&Corner { x: 32, y: 32, score: best }), "{out:?}");
+        // Straight edges are not corners.
+        assert!(out.iter().all(|c| (c.x as i32 - 32).abs() <= 3 && (c.y as i32 - 32).abs() <= 3), "{out:?}");
+    }
+
+    #[test]
+    fn non_max_suppression_keeps_strict_local_maxima() {
+        let (w, h) = (10, 10);
+        let mut map = vec![0u8; w * h];
+        let mut cs = vec![
+            Corner { x: 3, y: 3, score: 50 },
+            Corner { x: 4, y: 3, score: 40 },
+            Corner { x: 7, y: 7, score: 30 },
+            Corner { x: 7, y: 8, score: 30 },
+            Corner { x: 1, y: 6, score: 10 },
+        ];
+        for c in &cs {
+            map[c.y as usize * w + c.x as usize] = c.score;
+        }
+        non_max_suppression(&mut cs, &map, w, h);
+        assert_eq!(cs, vec![Corner { x: 3, y: 3, score: 50 }, Corner { x: 1, y: 6, score: 10 }]);
     }
 }

@@ -12,35 +12,41 @@ const fn gaussian_kernel() -> [u32; 7] {
 }
 
 /// Blurs the interior of `src` into `dst` (same size and pad), then fills `dst`'s border.
-/// `tmp` holds the horizontal pass (resized once).
+/// `tmp` holds the vertical pass (resized once). Both passes run in 16-bit lanes: the kernel sums
+/// to 256, so `255 * 256` fits; the intermediate is rounded to 8 bits (error <= 1 grey level).
 pub fn gaussian_blur_7x7(src: &PaddedImage, dst: &mut PaddedImage, tmp: &mut Vec<u16>) {
     let (w, h) = (src.width, src.height);
     debug_assert!(src.pad >= 3 && dst.width == w && dst.height == h);
-    // Horizontal pass over interior rows plus 3 border rows above and below.
-    let rows = h + 6;
-    tmp.resize(rows * w, 0);
-    for r in 0..rows {
-        let y = r as isize - 3;
-        let base = src.idx(0, y);
-        let s = &src.data[base - 3..base + w + 3];
-        let out = &mut tmp[r * w..(r + 1) * w];
+    // Vertical pass first, over interior rows and 3 border columns each side (contiguous rows
+    // vectorise well).
+    let tw = w + 6;
+    tmp.resize(h * tw, 0);
+    let st = src.stride;
+    for y in 0..h {
+        let base = src.idx(-3, y as isize);
+        let out = &mut tmp[y * tw..(y + 1) * tw];
+        let rows: [&[u8]; 7] = std::array::from_fn(|k| {
+            let b = base + k * st - 3 * st;
+            &src.data[b..b + tw]
+        });
         for (x, o) in out.iter_mut().enumerate() {
-            let mut acc = 0u32;
-            for (k, &kv) in KERNEL.iter().enumerate() {
-                acc += kv * s[x + k] as u32;
+            let mut acc = 0u16;
+            for k in 0..7 {
+                acc += KERNEL[k] as u16 * rows[k][x] as u16;
             }
-            *o = ((acc + 4) >> 3) as u16; // keep 5 fractional bits (values < 8192)
+            *o = (acc + 128) >> 8;
         }
     }
-    // Vertical pass.
+    // Horizontal pass.
     for y in 0..h {
+        let t = &tmp[y * tw..(y + 1) * tw];
         let out = dst.row_mut(y);
         for (x, o) in out.iter_mut().enumerate() {
-            let mut acc = 0u32;
-            for (k, &kv) in KERNEL.iter().enumerate() {
-                acc += kv * tmp[(y + k) * w + x] as u32;
+            let mut acc = 0u16;
+            for k in 0..7 {
+                acc += KERNEL[k] as u16 * t[x + k];
             }
-            *o = ((acc + (1 << 12)) >> 13) as u8;
+            *o = ((acc + 128) >> 8) as u8;
         }
     }
     dst.fill_border();

@@ -113,43 +113,22 @@ impl Pyramid {
     }
 }
 
-/// Bilinear downsampling with precomputed maps; `tmp` holds two horizontally resampled rows.
+/// Bilinear downsampling with precomputed maps: blend the two source rows (contiguous, SIMD),
+/// then resample the blended row horizontally. `tmp` holds one blended row in 8.8 fixed point.
 fn resample(src: &PaddedImage, dst: &mut PaddedImage, xmap: &[(u32, u16)], ymap: &[(u32, u16)], tmp: &mut Vec<u16>) {
-    let dw = dst.width;
-    tmp.resize(2 * dw, 0);
-    let mut cached = [usize::MAX; 2];
+    let sw = src.width;
+    tmp.resize(sw, 0);
     for (y, &(y0, wy)) in ymap.iter().enumerate() {
         let y0 = y0 as usize;
-        for k in 0..2 {
-            let sy = (y0 + k).min(src.height - 1);
-            if cached[k] == sy {
-                continue;
-            }
-            // Reuse the other cached row when possible.
-            if cached[1 - k] == sy {
-                let (a, b) = tmp.split_at_mut(dw);
-                if k == 0 {
-                    a.copy_from_slice(b);
-                } else {
-                    b.copy_from_slice(a);
-                }
-                cached[k] = sy;
-                continue;
-            }
-            let row = src.row(sy);
-            let out = &mut tmp[k * dw..(k + 1) * dw];
-            for (o, &(x0, wx)) in out.iter_mut().zip(xmap) {
-                let x0 = x0 as usize;
-                let a = row[x0] as u32;
-                let b = row[(x0 + 1).min(src.width - 1)] as u32;
-                *o = (a * (256 - wx as u32) + b * wx as u32) as u16;
-            }
-            cached[k] = sy;
+        let (a, b) = (src.row(y0), src.row((y0 + 1).min(src.height - 1)));
+        let (wa, wb) = (256 - wy, wy);
+        for ((t, &pa), &pb) in tmp.iter_mut().zip(a).zip(b) {
+            *t = pa as u16 * wa + pb as u16 * wb;
         }
         let out = dst.row_mut(y);
-        let wy = wy as u32;
-        for (x, o) in out.iter_mut().enumerate() {
-            let v = tmp[x] as u32 * (256 - wy) + tmp[dw + x] as u32 * wy;
+        for (o, &(x0, wx)) in out.iter_mut().zip(xmap) {
+            let x0 = x0 as usize;
+            let v = tmp[x0] as u32 * (256 - wx as u32) + tmp[(x0 + 1).min(sw - 1)] as u32 * wx as u32;
             *o = ((v + (1 << 15)) >> 16) as u8;
         }
     }
