@@ -20,6 +20,10 @@ pub struct OrbConfig {
     /// FAST threshold, then the fallback for cells with no corner.
     pub ini_th_fast: u8,
     pub min_th_fast: u8,
+    /// Quadtree nodes per wanted feature before keeping the strongest node winners. 1.0 is
+    /// ORB-SLAM's distribution (most even, least repeatable); larger values favour strong,
+    /// repeatable corners (see docs/DECISIONS.md for the measurements).
+    pub quadtree_oversampling: f64,
 }
 
 impl Default for OrbConfig {
@@ -30,6 +34,7 @@ impl Default for OrbConfig {
             n_levels: 8,
             ini_th_fast: 20,
             min_th_fast: 7,
+            quadtree_oversampling: 2.0,
         }
     }
 }
@@ -141,6 +146,9 @@ impl Config {
         }
         if self.orb.n_features == 0 {
             return bad("orb.n_features", "must be positive");
+        }
+        if !(1.0..=100.0).contains(&self.orb.quadtree_oversampling) {
+            return bad("orb.quadtree_oversampling", "must be in 1..=100");
         }
         if self.orb.min_th_fast > self.orb.ini_th_fast {
             return bad("orb.min_th_fast", "must not exceed orb.ini_th_fast");

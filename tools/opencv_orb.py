@@ -16,6 +16,7 @@ ap.add_argument("images", nargs="+")
 ap.add_argument("--n", type=int, default=1000)
 ap.add_argument("--repeat", type=int, default=10)
 ap.add_argument("--json", action="store_true")
+ap.add_argument("--warp", help="9 comma-separated numbers: homography source -> warped (row-major)")
 a = ap.parse_args()
 cv2.setNumThreads(1)
 orb = cv2.ORB_create(a.n, 1.2, 8)
@@ -30,7 +31,44 @@ for p in a.images:
         times.append((time.perf_counter() - t) * 1e3)
         counts.append(len(kps))
 mt, mc = statistics.median(times), statistics.median(counts)
+out = {"median_ms": mt, "features": mc, "images": len(a.images), "repeat": a.repeat}
+
+
+def warp_quality(path, H, border=16.0, eps=2.5):
+    """Same definition as sdslam's features::quality::warp_quality."""
+    import numpy as np
+    img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+    h, w = img.shape
+    warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR, borderValue=0)
+    ka, da = orb.detectAndCompute(img, None)
+    kb, db = orb.detectAndCompute(warped, None)
+    pb = np.array([k.pt for k in kb])
+    comparable = repeated = matched = 0
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+    nn = {m.queryIdx: m.trainIdx for m in bf.match(da, db)}
+    for i, k in enumerate(ka):
+        p = H @ np.array([k.pt[0], k.pt[1], 1.0])
+        x, y = p[0] / p[2], p[1] / p[2]
+        if not (border <= x <= w - 1 - border and border <= y <= h - 1 - border):
+            continue
+        comparable += 1
+        d = np.hypot(pb[:, 0] - x, pb[:, 1] - y)
+        repeated += bool((d <= eps).any())
+        j = nn.get(i)
+        matched += j is not None and d[j] <= eps
+    n = max(comparable, 1)
+    return repeated / n, matched / n
+
+
+if a.warp:
+    import numpy as np
+    H = np.array([float(v) for v in a.warp.split(",")]).reshape(3, 3)
+    q = [warp_quality(p, H) for p in a.images]
+    out["repeatability"] = sum(r for r, _ in q) / len(q)
+    out["matching_score"] = sum(m for _, m in q) / len(q)
 if a.json:
-    print(json.dumps({"median_ms": mt, "features": mc, "images": len(a.images), "repeat": a.repeat}))
+    print(json.dumps(out))
 else:
     print(f"{len(a.images)} images x {a.repeat} runs: median {mt:.3f} ms per extraction, median {mc} features")
+    if a.warp:
+        print(f"under the homography: repeatability {out['repeatability']:.3f}, matching score {out['matching_score']:.3f} (mean over images, 2.5 px)")

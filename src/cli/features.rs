@@ -9,7 +9,9 @@ use clap::Args;
 use sdslam::camera::decode::ImageDecoderBuf;
 use sdslam::camera::Frame;
 use sdslam::config::OrbConfig;
+use sdslam::features::quality::warp_quality;
 use sdslam::features::{Features, OrbExtractor};
+use sdslam::image::warp::warp_perspective;
 use sdslam::{Error, Result};
 
 #[derive(Args, Debug)]
@@ -26,6 +28,10 @@ pub struct FeaturesArgs {
     /// Print one JSON object (`median_ms`, `features`).
     #[arg(long)]
     json: bool,
+    /// Also measure repeatability and matching score against each image warped by this
+    /// homography (9 numbers, row-major, mapping source to warped pixels).
+    #[arg(long, allow_hyphen_values = true)]
+    warp: Option<String>,
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -67,10 +73,63 @@ pub fn features(a: FeaturesArgs) -> Result<()> {
         }
     }
     let (mt, mc) = (median(&mut times), median(&mut counts));
+    let quality = match &a.warp {
+        Some(h) => {
+            let h: Vec<f64> = h
+                .split(',')
+                .map(|v| v.trim().parse::<f64>().ok().filter(|x| x.is_finite()))
+                .collect::<Option<_>>()
+                .filter(|v: &Vec<f64>| v.len() == 9)
+                .ok_or_else(|| {
+                    Error::Invalid(format!("--warp {h:?}: expected 9 comma-separated numbers"))
+                })?;
+            Some(warp_quality_over(&a.images, &h, &cfg)?)
+        }
+        None => None,
+    };
     if a.json {
-        println!("{{\"median_ms\": {mt:.4}, \"features\": {mc}, \"images\": {}, \"repeat\": {}}}", a.images.len(), a.repeat);
+        let q = quality
+            .map(|(r, m)| format!(", \"repeatability\": {r:.4}, \"matching_score\": {m:.4}"))
+            .unwrap_or_default();
+        println!(
+            "{{\"median_ms\": {mt:.4}, \"features\": {mc}, \"images\": {}, \"repeat\": {}{q}}}",
+            a.images.len(),
+            a.repeat
+        );
     } else {
-        println!("{} images x {} runs: median {mt:.3} ms per extraction, median {mc} features", a.images.len(), a.repeat);
+        println!(
+            "{} images x {} runs: median {mt:.3} ms per extraction, median {mc} features",
+            a.images.len(),
+            a.repeat
+        );
+        if let Some((r, m)) = quality {
+            println!("under the homography: repeatability {r:.3}, matching score {m:.3} (mean over images, 2.5 px)");
+        }
     }
     Ok(())
+}
+
+/// Mean repeatability and matching score of each image against its warp by `h`.
+fn warp_quality_over(images: &[PathBuf], h: &[f64], cfg: &OrbConfig) -> Result<(f64, f64)> {
+    let hm = nalgebra::Matrix3::from_row_slice(h);
+    let mut dec = ImageDecoderBuf::new();
+    let mut frame = Frame::new(0, 0);
+    let (mut rs, mut ms) = (0.0, 0.0);
+    for p in images {
+        dec.read_file(p, None, &mut frame)?;
+        let (w, hgt) = (frame.width as usize, frame.height as usize);
+        let mut warped = vec![0u8; w * hgt];
+        if !warp_perspective(&frame.gray, w, hgt, &hm, &mut warped) {
+            return Err(Error::Invalid("--warp: the homography is singular".into()));
+        }
+        let mut ex = OrbExtractor::new(w, hgt, cfg);
+        let (mut fa, mut fb) = (Features::default(), Features::default());
+        ex.extract(&frame.gray, None, &mut fa);
+        ex.extract(&warped, None, &mut fb);
+        let q = warp_quality(&fa, &fb, &hm, w as f64, hgt as f64, 16.0, 2.5);
+        rs += q.repeatability;
+        ms += q.matching_score;
+    }
+    let n = images.len() as f64;
+    Ok((rs / n, ms / n))
 }

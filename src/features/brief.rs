@@ -18,7 +18,9 @@ pub fn pattern() -> &'static [[i8; 4]; 256] {
     P.get_or_init(|| {
         let mut state = 0x5DEE_CE66_D1CE_4E5Bu64;
         let mut uniform = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
         };
         let sigma = 31.0 / 5.0;
@@ -105,7 +107,11 @@ mod tests {
         let mut img = PaddedImage::new(w, h, 24);
         img.copy_from(&data);
         for a in [0.0f32, 33.0, 90.0, 271.5] {
-            assert_eq!(describe(&img, 30, 35, a), describe(&img, 80, 35, a), "angle {a}");
+            assert_eq!(
+                describe(&img, 30, 35, a),
+                describe(&img, 80, 35, a),
+                "angle {a}"
+            );
         }
         assert_ne!(describe(&img, 30, 35, 0.0), describe(&img, 31, 35, 0.0));
     }

@@ -42,7 +42,13 @@ impl QuadtreeScratch {
 }
 
 /// Partitions `idx[s..e]` so corners with `pred` true come first; returns the split point.
-fn partition(idx: &mut [u32], corners: &[Corner], s: usize, e: usize, pred: impl Fn(&Corner) -> bool) -> usize {
+fn partition(
+    idx: &mut [u32],
+    corners: &[Corner],
+    s: usize,
+    e: usize,
+    pred: impl Fn(&Corner) -> bool,
+) -> usize {
     let mut i = s;
     for j in s..e {
         if pred(&corners[idx[j] as usize]) {
@@ -106,9 +112,18 @@ pub fn distribute(
     for i in 0..n_ini {
         let (a, b) = (x0 + hx * i as f32, x0 + hx * (i + 1) as f32);
         let last = i + 1 == n_ini;
-        let end = partition(idx, corners, start, corners.len(), |c| last || (c.x as f32) < b);
+        let end = partition(idx, corners, start, corners.len(), |c| {
+            last || (c.x as f32) < b
+        });
         if end > start {
-            nodes.push(Node { x0: a, y0, x1: b, y1, start: start as u32, end: end as u32 });
+            nodes.push(Node {
+                x0: a,
+                y0,
+                x1: b,
+                y1,
+                start: start as u32,
+                end: end as u32,
+            });
         }
         start = end;
     }
@@ -133,7 +148,12 @@ pub fn distribute(
         if nodes.len() + splittable * 3 > wanted {
             while nodes.len() < wanted {
                 nodes.sort_unstable_by_key(|n| std::cmp::Reverse(n.len()));
-                let Some(pos) = nodes.iter().position(|n| n.len() > 1 && (n.x1 - n.x0) >= 1.0) else { break };
+                let Some(pos) = nodes
+                    .iter()
+                    .position(|n| n.len() > 1 && (n.x1 - n.x0) >= 1.0)
+                else {
+                    break;
+                };
                 let n = nodes.swap_remove(pos);
                 split(&n, idx, corners, nodes);
             }
@@ -165,16 +185,35 @@ mod tests {
         let mut corners = Vec::new();
         let mut s = 1u64;
         for i in 0..2000 {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             let r = (s >> 33) as u32;
-            let (x, y) = if i % 10 == 0 { (r % 600, (r / 600) % 440) } else { (r % 100, (r / 100) % 100) };
-            corners.push(Corner { x: x as u16 + 20, y: y as u16 + 20, score: (r % 200) as u8 + 10 });
+            let (x, y) = if i % 10 == 0 {
+                (r % 600, (r / 600) % 440)
+            } else {
+                (r % 100, (r / 100) % 100)
+            };
+            corners.push(Corner {
+                x: x as u16 + 20,
+                y: y as u16 + 20,
+                score: (r % 200) as u8 + 10,
+            });
         }
         let mut scratch = QuadtreeScratch::with_capacity(2000, 300);
         let mut sel = Vec::new();
-        distribute(&corners, (20.0, 20.0, 620.0, 460.0), 300, &mut scratch, &mut sel);
+        distribute(
+            &corners,
+            (20.0, 20.0, 620.0, 460.0),
+            300,
+            &mut scratch,
+            &mut sel,
+        );
         assert!(sel.len() <= 300 && sel.len() >= 250, "{}", sel.len());
-        let in_cluster = sel.iter().filter(|&&i| corners[i as usize].x < 120 && corners[i as usize].y < 120).count();
+        let in_cluster = sel
+            .iter()
+            .filter(|&&i| corners[i as usize].x < 120 && corners[i as usize].y < 120)
+            .count();
         // The cluster covers ~4% of the area: most selected corners must lie outside it.
         assert!(in_cluster < sel.len() / 2, "{in_cluster} of {}", sel.len());
         let mut u = sel.clone();
@@ -185,9 +224,21 @@ mod tests {
 
     #[test]
     fn fewer_corners_than_wanted_keeps_all() {
-        let corners: Vec<Corner> = (0..10).map(|i| Corner { x: 30 + i * 40, y: 50, score: 30 }).collect();
+        let corners: Vec<Corner> = (0..10)
+            .map(|i| Corner {
+                x: 30 + i * 40,
+                y: 50,
+                score: 30,
+            })
+            .collect();
         let mut sel = Vec::new();
-        distribute(&corners, (0.0, 0.0, 640.0, 480.0), 100, &mut QuadtreeScratch::default(), &mut sel);
+        distribute(
+            &corners,
+            (0.0, 0.0, 640.0, 480.0),
+            100,
+            &mut QuadtreeScratch::default(),
+            &mut sel,
+        );
         assert_eq!(sel.len(), 10);
     }
 }

@@ -63,17 +63,23 @@ impl OrbExtractor {
         let to_level0 = pyramid
             .levels
             .iter()
-            .map(|l| (width as f64 / l.width as f64, height as f64 / l.height as f64))
+            .map(|l| {
+                (
+                    width as f64 / l.width as f64,
+                    height as f64 / l.height as f64,
+                )
+            })
             .collect();
         let cells = (width / CELL + 2) * (height / CELL + 2);
         OrbExtractor {
             per_level: features_per_level(config.n_features, config.scale_factor, config.n_levels),
             config: config.clone(),
             umax: circle_umax(),
-            corners: Vec::with_capacity(width * height / 16),
+            // Bounded by construction: at most one corner per pixel of level 0.
+            corners: Vec::with_capacity(width * height),
             score_map: vec![0; width * height],
             cell_counts: vec![0; cells],
-            scratch: QuadtreeScratch::with_capacity(width * height / 16, config.n_features),
+            scratch: QuadtreeScratch::with_capacity(width * height, config.n_features),
             selected: Vec::with_capacity(config.n_features * 2),
             pyramid,
             to_level0,
@@ -116,7 +122,13 @@ impl OrbExtractor {
         score_map.fill(0);
         self.corners.clear();
         // FAST at the initial threshold everywhere, then the low threshold in empty cells.
-        detect(level, self.config.ini_th_fast, (x0, y0, x1, y1), &mut self.corners, score_map);
+        detect(
+            level,
+            self.config.ini_th_fast,
+            (x0, y0, x1, y1),
+            &mut self.corners,
+            score_map,
+        );
         let (cols, rows) = ((x1 - x0).div_ceil(CELL), (y1 - y0).div_ceil(CELL));
         let counts = &mut self.cell_counts[..cols * rows];
         counts.fill(0);
@@ -127,21 +139,41 @@ impl OrbExtractor {
             for cy in 0..rows {
                 for cx in 0..cols {
                     if counts[cy * cols + cx] == 0 {
-                        let r = (x0 + cx * CELL, y0 + cy * CELL, (x0 + (cx + 1) * CELL).min(x1), (y0 + (cy + 1) * CELL).min(y1));
-                        detect(level, self.config.min_th_fast, r, &mut self.corners, score_map);
+                        let r = (
+                            x0 + cx * CELL,
+                            y0 + cy * CELL,
+                            (x0 + (cx + 1) * CELL).min(x1),
+                            (y0 + (cy + 1) * CELL).min(y1),
+                        );
+                        detect(
+                            level,
+                            self.config.min_th_fast,
+                            r,
+                            &mut self.corners,
+                            score_map,
+                        );
                     }
                 }
             }
         }
         non_max_suppression(&mut self.corners, score_map, w, h);
         let wanted = self.per_level[l];
+        // More nodes than wanted, then the strongest node winners: spread like ORB-SLAM's
+        // quadtree, but strong (repeatable) corners survive node boundaries moving.
+        let nodes = (wanted as f64 * self.config.quadtree_oversampling).round() as usize;
         distribute(
             &self.corners,
             (x0 as f32, y0 as f32, x1 as f32, y1 as f32),
-            wanted,
+            nodes,
             &mut self.scratch,
             &mut self.selected,
         );
+        if self.selected.len() > wanted {
+            let corners = &self.corners;
+            self.selected
+                .sort_unstable_by_key(|&i| std::cmp::Reverse(corners[i as usize].score));
+            self.selected.truncate(wanted);
+        }
         if self.selected.is_empty() {
             return;
         }
@@ -182,29 +214,5 @@ mod tests {
         assert_eq!(v.iter().sum::<usize>(), 1000);
         assert_eq!(v[0], 217);
         assert!(v.windows(2).take(6).all(|w| w[0] > w[1]));
-    }
-}
-#[cfg(test)]
-mod probe {
-    #[test]
-    #[ignore]
-    fn probe_counts() {
-        use crate::image::{Pyramid, PyramidConfig};
-        use crate::features::fast::*;
-        let img = image::open("../shared/data/synthetic/desk/rgb/1700000000.000000.jpg").unwrap().to_luma8();
-        let mut p = Pyramid::new(640, 480, PyramidConfig { levels: 8, scale_factor: 1.2, pad: 40 });
-        p.build(img.as_raw());
-        let mut tot = 0;
-        for l in 0..8 {
-            let lv = &p.levels[l];
-            let mut out = Vec::new();
-            let mut map = vec![0u8; lv.width * lv.height];
-            detect(lv, 20, (16, 16, lv.width - 16, lv.height - 16), &mut out, &mut map);
-            let n = out.len();
-            non_max_suppression(&mut out, &map, lv.width, lv.height);
-            eprintln!("level {l}: {n} corners, {} after nms, px {}", out.len(), lv.width * lv.height);
-            tot += n;
-        }
-        eprintln!("total {tot}");
     }
 }

@@ -118,8 +118,17 @@ pub type Region = (usize, usize, usize, usize);
 /// Detects every FAST-9 corner with score >= `threshold` inside `region` of `img`, appending to
 /// `out` with their exact scores, and writes scores into `score_map` (level-sized, zeroed by
 /// the caller) for non-maximum suppression. Uses AVX2 when the CPU has it.
-pub fn detect(img: &PaddedImage, threshold: u8, region: Region, out: &mut Vec<Corner>, score_map: &mut [u8]) {
-    assert!(img.pad >= 3 + LANES, "FAST needs a border of 3 + LANES pixels for its wide loads");
+pub fn detect(
+    img: &PaddedImage,
+    threshold: u8,
+    region: Region,
+    out: &mut Vec<Corner>,
+    score_map: &mut [u8],
+) {
+    assert!(
+        img.pad >= 3 + LANES,
+        "FAST needs a border of 3 + LANES pixels for its wide loads"
+    );
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked just above); the function is otherwise safe.
@@ -131,7 +140,13 @@ pub fn detect(img: &PaddedImage, threshold: u8, region: Region, out: &mut Vec<Co
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn detect_avx2(img: &PaddedImage, threshold: u8, region: Region, out: &mut Vec<Corner>, score_map: &mut [u8]) {
+fn detect_avx2(
+    img: &PaddedImage,
+    threshold: u8,
+    region: Region,
+    out: &mut Vec<Corner>,
+    score_map: &mut [u8],
+) {
     detect_lanes(img, threshold, region, out, score_map)
 }
 
@@ -164,7 +179,10 @@ fn detect_lanes(
                 }
             }
             let pair = |m: &[Lanes; 16]| {
-                max(&max(&min(&m[0], &m[4]), &min(&m[4], &m[8])), &max(&min(&m[8], &m[12]), &min(&m[12], &m[0])))
+                max(
+                    &max(&min(&m[0], &m[4]), &min(&m[4], &m[8])),
+                    &max(&min(&m[8], &m[12]), &min(&m[12], &m[0])),
+                )
             };
             let cand = max(&pair(&bright), &pair(&dark));
             if cand.iter().any(|&v| v > t) {
@@ -199,7 +217,12 @@ fn detect_lanes(
 }
 
 /// Keeps corners whose score beats all 8 neighbours strictly (as OpenCV's FAST), in place.
-pub fn non_max_suppression(corners: &mut Vec<Corner>, score_map: &[u8], width: usize, height: usize) {
+pub fn non_max_suppression(
+    corners: &mut Vec<Corner>,
+    score_map: &[u8],
+    width: usize,
+    height: usize,
+) {
     corners.retain(|c| {
         let (x, y, s) = (c.x as usize, c.y as usize, c.score);
         if x == 0 || y == 0 || x + 1 >= width || y + 1 >= height {
@@ -227,15 +250,21 @@ mod tests {
     fn is_corner(img: &PaddedImage, x: isize, y: isize, t: u8) -> bool {
         let p = img.at(x, y) as i16;
         let t = t as i16;
-        let v: Vec<i16> = CIRCLE.iter().map(|&(dx, dy)| img.at(x + dx, y + dy) as i16).collect();
-        (0..16).any(|s| (0..9).all(|j| v[(s + j) % 16] > p + t)) || (0..16).any(|s| (0..9).all(|j| v[(s + j) % 16] < p - t))
+        let v: Vec<i16> = CIRCLE
+            .iter()
+            .map(|&(dx, dy)| img.at(x + dx, y + dy) as i16)
+            .collect();
+        (0..16).any(|s| (0..9).all(|j| v[(s + j) % 16] > p + t))
+            || (0..16).any(|s| (0..9).all(|j| v[(s + j) % 16] < p - t))
     }
 
     fn noise_image(w: usize, h: usize, seed: u64) -> PaddedImage {
         let mut s = seed;
         let data: Vec<u8> = (0..w * h)
             .map(|_| {
-                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
                 (s >> 56) as u8
             })
             .collect();
@@ -264,7 +293,9 @@ mod tests {
             for k in &out {
                 let s = corner_score(&img, k.x as isize, k.y as isize);
                 assert!(is_corner(&img, k.x as isize, k.y as isize, s));
-                assert!(!is_corner(&img, k.x as isize, k.y as isize, s.saturating_add(1)) || s == 255);
+                assert!(
+                    !is_corner(&img, k.x as isize, k.y as isize, s.saturating_add(1)) || s == 255
+                );
             }
         }
     }
@@ -283,9 +314,20 @@ mod tests {
         let mut map = vec![0u8; 64 * 64];
         detect(&img, 20, (3, 3, 61, 61), &mut out, &mut map);
         let best = out.iter().map(|c| c.score).max().unwrap();
-        assert!(out.contains(&Corner { x: 32, y: 32, score: best }), "{out:?}");
+        assert!(
+            out.contains(&Corner {
+                x: 32,
+                y: 32,
+                score: best
+            }),
+            "{out:?}"
+        );
         // Straight edges are not corners.
-        assert!(out.iter().all(|c| (c.x as i32 - 32).abs() <= 3 && (c.y as i32 - 32).abs() <= 3), "{out:?}");
+        assert!(
+            out.iter()
+                .all(|c| (c.x as i32 - 32).abs() <= 3 && (c.y as i32 - 32).abs() <= 3),
+            "{out:?}"
+        );
     }
 
     #[test]
@@ -293,16 +335,50 @@ mod tests {
         let (w, h) = (10, 10);
         let mut map = vec![0u8; w * h];
         let mut cs = vec![
-            Corner { x: 3, y: 3, score: 50 },
-            Corner { x: 4, y: 3, score: 40 },
-            Corner { x: 7, y: 7, score: 30 },
-            Corner { x: 7, y: 8, score: 30 },
-            Corner { x: 1, y: 6, score: 10 },
+            Corner {
+                x: 3,
+                y: 3,
+                score: 50,
+            },
+            Corner {
+                x: 4,
+                y: 3,
+                score: 40,
+            },
+            Corner {
+                x: 7,
+                y: 7,
+                score: 30,
+            },
+            Corner {
+                x: 7,
+                y: 8,
+                score: 30,
+            },
+            Corner {
+                x: 1,
+                y: 6,
+                score: 10,
+            },
         ];
         for c in &cs {
             map[c.y as usize * w + c.x as usize] = c.score;
         }
         non_max_suppression(&mut cs, &map, w, h);
-        assert_eq!(cs, vec![Corner { x: 3, y: 3, score: 50 }, Corner { x: 1, y: 6, score: 10 }]);
+        assert_eq!(
+            cs,
+            vec![
+                Corner {
+                    x: 3,
+                    y: 3,
+                    score: 50
+                },
+                Corner {
+                    x: 1,
+                    y: 6,
+                    score: 10
+                }
+            ]
+        );
     }
 }

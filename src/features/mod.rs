@@ -8,6 +8,7 @@ mod distribute;
 mod extractor;
 pub mod fast;
 pub mod orientation;
+pub mod quality;
 
 pub use brief::Descriptor;
 pub use extractor::{features_per_level, OrbExtractor};

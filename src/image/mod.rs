@@ -3,6 +3,7 @@
 mod blur;
 mod padded;
 mod pyramid;
+pub mod warp;
 
 pub use blur::gaussian_blur_7x7;
 pub use padded::PaddedImage;

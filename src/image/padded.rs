@@ -92,8 +92,10 @@ impl PaddedImage {
         for k in 1..=p {
             let top = reflect(-(k as isize), h) + p;
             let bot = reflect((h - 1 + k) as isize, h) + p;
-            self.data.copy_within(top * st..(top + 1) * st, (p - k) * st);
-            self.data.copy_within(bot * st..(bot + 1) * st, (p + h - 1 + k) * st);
+            self.data
+                .copy_within(top * st..(top + 1) * st, (p - k) * st);
+            self.data
+                .copy_within(bot * st..(bot + 1) * st, (p + h - 1 + k) * st);
         }
     }
 }

@@ -51,7 +51,10 @@ impl Pyramid {
                 )
             })
             .collect();
-        let levels: Vec<PaddedImage> = sizes.iter().map(|&(w, h)| PaddedImage::new(w, h, config.pad)).collect();
+        let levels: Vec<PaddedImage> = sizes
+            .iter()
+            .map(|&(w, h)| PaddedImage::new(w, h, config.pad))
+            .collect();
         let blurred = levels.clone();
         // Bilinear resample maps from level l-1 to level l (as cv::resize INTER_LINEAR).
         let map = |src: usize, dst: usize| -> Vec<(u32, u16)> {
@@ -95,7 +98,13 @@ impl Pyramid {
         self.levels[0].copy_from(gray);
         for l in 1..self.levels.len() {
             let (prev, cur) = self.levels.split_at_mut(l);
-            resample(&prev[l - 1], &mut cur[0], &self.xmap[l], &self.ymap[l], &mut self.row_tmp);
+            resample(
+                &prev[l - 1],
+                &mut cur[0],
+                &self.xmap[l],
+                &self.ymap[l],
+                &mut self.row_tmp,
+            );
             cur[0].fill_border();
         }
     }
@@ -115,7 +124,13 @@ impl Pyramid {
 
 /// Bilinear downsampling with precomputed maps: blend the two source rows (contiguous, SIMD),
 /// then resample the blended row horizontally. `tmp` holds one blended row in 8.8 fixed point.
-fn resample(src: &PaddedImage, dst: &mut PaddedImage, xmap: &[(u32, u16)], ymap: &[(u32, u16)], tmp: &mut Vec<u16>) {
+fn resample(
+    src: &PaddedImage,
+    dst: &mut PaddedImage,
+    xmap: &[(u32, u16)],
+    ymap: &[(u32, u16)],
+    tmp: &mut Vec<u16>,
+) {
     let sw = src.width;
     tmp.resize(sw, 0);
     for (y, &(y0, wy)) in ymap.iter().enumerate() {
@@ -128,7 +143,8 @@ fn resample(src: &PaddedImage, dst: &mut PaddedImage, xmap: &[(u32, u16)], ymap:
         let out = dst.row_mut(y);
         for (o, &(x0, wx)) in out.iter_mut().zip(xmap) {
             let x0 = x0 as usize;
-            let v = tmp[x0] as u32 * (256 - wx as u32) + tmp[(x0 + 1).min(sw - 1)] as u32 * wx as u32;
+            let v =
+                tmp[x0] as u32 * (256 - wx as u32) + tmp[(x0 + 1).min(sw - 1)] as u32 * wx as u32;
             *o = ((v + (1 << 15)) >> 16) as u8;
         }
     }
@@ -160,14 +176,21 @@ mod tests {
     fn flat_image_stays_flat_and_ramp_is_preserved() {
         let mut p = Pyramid::new(64, 48, cfg());
         p.build(&[77; 64 * 48]);
-        assert!(p.levels.iter().all(|l| (0..l.height).all(|y| l.row(y).iter().all(|&v| v == 77))));
+        assert!(p
+            .levels
+            .iter()
+            .all(|l| (0..l.height).all(|y| l.row(y).iter().all(|&v| v == 77))));
         let ramp: Vec<u8> = (0..64 * 48).map(|i| (i % 64 * 3) as u8).collect();
         p.build(&ramp);
         let l1 = &p.levels[1];
         // Level-1 pixel x maps to level-0 position (x + 0.5) * 1.2 - 0.5.
         let x = 20usize;
         let expect = ((x as f64 + 0.5) * 64.0 / l1.width as f64 - 0.5) * 3.0;
-        assert!((l1.at(x as isize, 10) as f64 - expect).abs() <= 1.0, "{} vs {expect}", l1.at(x as isize, 10));
+        assert!(
+            (l1.at(x as isize, 10) as f64 - expect).abs() <= 1.0,
+            "{} vs {expect}",
+            l1.at(x as isize, 10)
+        );
     }
 
     #[test]
@@ -179,6 +202,9 @@ mod tests {
         let ptrs: Vec<_> = p.levels.iter().map(|l| l.data.as_ptr()).collect();
         p.build(&img);
         p.blur();
-        assert_eq!(ptrs, p.levels.iter().map(|l| l.data.as_ptr()).collect::<Vec<_>>());
+        assert_eq!(
+            ptrs,
+            p.levels.iter().map(|l| l.data.as_ptr()).collect::<Vec<_>>()
+        );
     }
 }

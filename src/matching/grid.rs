@@ -35,7 +35,8 @@ impl FeatureGrid {
     fn cell_of(&self, x: f32, y: f32) -> Option<(usize, usize)> {
         let cx = ((x - self.min_x) * self.inv_cell_w).floor();
         let cy = ((y - self.min_y) * self.inv_cell_h).floor();
-        (cx >= 0.0 && cy >= 0.0 && (cx as usize) < self.cols && (cy as usize) < self.rows).then_some((cx as usize, cy as usize))
+        (cx >= 0.0 && cy >= 0.0 && (cx as usize) < self.cols && (cy as usize) < self.rows)
+            .then_some((cx as usize, cy as usize))
     }
 
     /// Buckets `keypoints` by undistorted position (points outside the bounds are left out).
@@ -72,7 +73,16 @@ impl FeatureGrid {
     /// Indices of keypoints within `r` (square window, as ORB-SLAM) of (x, y) whose octave is in
     /// `[min_level, max_level]`, appended to `out` (cleared first).
     #[allow(clippy::too_many_arguments)]
-    pub fn in_area(&self, keypoints: &[KeyPoint], x: f32, y: f32, r: f32, min_level: u8, max_level: u8, out: &mut Vec<u32>) {
+    pub fn in_area(
+        &self,
+        keypoints: &[KeyPoint],
+        x: f32,
+        y: f32,
+        r: f32,
+        min_level: u8,
+        max_level: u8,
+        out: &mut Vec<u32>,
+    ) {
         out.clear();
         let c0x = (((x - r - self.min_x) * self.inv_cell_w).floor().max(0.0)) as usize;
         let c0y = (((y - r - self.min_y) * self.inv_cell_h).floor().max(0.0)) as usize;
@@ -81,7 +91,10 @@ impl FeatureGrid {
         if c1x < 0.0 || c1y < 0.0 {
             return;
         }
-        let (c1x, c1y) = ((c1x as usize).min(self.cols - 1), (c1y as usize).min(self.rows - 1));
+        let (c1x, c1y) = (
+            (c1x as usize).min(self.cols - 1),
+            (c1y as usize).min(self.rows - 1),
+        );
         for cy in c0y..=c1y {
             for cx in c0x..=c1x {
                 let c = cy * self.cols + cx;
@@ -108,22 +121,39 @@ mod tests {
         let mut kps = Vec::new();
         let mut s = 5u64;
         for i in 0..500 {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             let x = (s >> 40) as f32 % 640.0;
             let y = (s >> 20) as f32 % 480.0;
-            kps.push(KeyPoint { ux: x, uy: y, x, y, octave: (i % 8) as u8, ..Default::default() });
+            kps.push(KeyPoint {
+                ux: x,
+                uy: y,
+                x,
+                y,
+                octave: (i % 8) as u8,
+                ..Default::default()
+            });
         }
         let mut g = FeatureGrid::new(64, 48, (0.0, 0.0, 640.0, 480.0), 1000);
         g.assign(&kps);
         let mut out = Vec::new();
-        for (x, y, r, lo, hi) in [(100.0, 100.0, 30.0, 0, 7), (0.0, 0.0, 50.0, 2, 3), (639.0, 479.0, 15.0, 0, 7), (320.0, 240.0, 200.0, 1, 1)] {
+        for (x, y, r, lo, hi) in [
+            (100.0, 100.0, 30.0, 0, 7),
+            (0.0, 0.0, 50.0, 2, 3),
+            (639.0, 479.0, 15.0, 0, 7),
+            (320.0, 240.0, 200.0, 1, 1),
+        ] {
             g.in_area(&kps, x, y, r, lo, hi, &mut out);
             let mut got = out.clone();
             got.sort();
             let expect: Vec<u32> = (0..kps.len() as u32)
                 .filter(|&i| {
                     let k = &kps[i as usize];
-                    (k.ux - x).abs() <= r && (k.uy - y).abs() <= r && k.octave >= lo && k.octave <= hi
+                    (k.ux - x).abs() <= r
+                        && (k.uy - y).abs() <= r
+                        && k.octave >= lo
+                        && k.octave <= hi
                 })
                 .collect();
             assert_eq!(got, expect);

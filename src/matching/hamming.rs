@@ -10,7 +10,10 @@ pub const TH_HIGH: u32 = 100;
 
 #[inline(always)]
 pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {
-    (a[0] ^ b[0]).count_ones() + (a[1] ^ b[1]).count_ones() + (a[2] ^ b[2]).count_ones() + (a[3] ^ b[3]).count_ones()
+    (a[0] ^ b[0]).count_ones()
+        + (a[1] ^ b[1]).count_ones()
+        + (a[2] ^ b[2]).count_ones()
+        + (a[3] ^ b[3]).count_ones()
 }
 
 /// Nearest/second-nearest ratio test: the best match must be clearly better than the second.

@@ -18,7 +18,9 @@ impl Default for RotationHistogram {
 impl RotationHistogram {
     pub fn with_capacity(per_bin: usize) -> Self {
         RotationHistogram {
-            bins: (0..HISTO_LENGTH).map(|_| Vec::with_capacity(per_bin)).collect(),
+            bins: (0..HISTO_LENGTH)
+                .map(|_| Vec::with_capacity(per_bin))
+                .collect(),
         }
     }
 
@@ -52,7 +54,10 @@ impl RotationHistogram {
             }
         }
         let max = top[0].0;
-        let keep = |i: usize| top.iter().any(|&(n, b)| b == i && (n as f32) >= 0.1 * max as f32);
+        let keep = |i: usize| {
+            top.iter()
+                .any(|&(n, b)| b == i && (n as f32) >= 0.1 * max as f32)
+        };
         for (i, b) in self.bins.iter().enumerate() {
             if !keep(i) {
                 b.iter().for_each(|&id| reject(id));

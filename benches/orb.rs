@@ -1,0 +1,42 @@
+//! ORB extraction and brute-force matching on 640x480 frames of the built-in sequence, one thread.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use sdslam::camera::Frame;
+use sdslam::config::OrbConfig;
+use sdslam::features::{Features, OrbExtractor};
+use sdslam::matching::hamming;
+use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
+
+fn orb(c: &mut Criterion) {
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
+    let mut f = Frame::new(640, 480);
+    seq.render_frame(30, &mut f);
+    let mut g = Frame::new(640, 480);
+    seq.render_frame(33, &mut g);
+    let mut ex = OrbExtractor::new(640, 480, &OrbConfig::default());
+    let mut out = Features::with_capacity(1000);
+    c.bench_function("orb_extract_640x480_1000", |b| {
+        b.iter(|| ex.extract(&f.gray, None, &mut out))
+    });
+    let mut a = Features::with_capacity(1000);
+    let mut bfe = Features::with_capacity(1000);
+    ex.extract(&f.gray, None, &mut a);
+    ex.extract(&g.gray, None, &mut bfe);
+    c.bench_function("hamming_brute_force_1000x1000", |b| {
+        b.iter(|| {
+            let mut s = 0u32;
+            for da in &a.descriptors {
+                s += bfe
+                    .descriptors
+                    .iter()
+                    .map(|db| hamming(da, db))
+                    .min()
+                    .unwrap_or(0);
+            }
+            s
+        })
+    });
+}
+
+criterion_group!(benches, orb);
+criterion_main!(benches);
