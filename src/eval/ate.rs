@@ -4,8 +4,7 @@
 use nalgebra::Vector3;
 use serde::Serialize;
 
-use super::umeyama;
-use crate::geometry::{Sim3, WorldFromCamera};
+use crate::geometry::{umeyama, Sim3, WorldFromCamera};
 
 /// A pose with its timestamp (seconds).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,6 +1,14 @@
-//! Geometry: typed poses now; two-view, triangulation, PnP and Sim3 solvers as pure functions
-//! over correspondences.
+//! Geometry: typed poses and pure solvers over correspondences (no map types): two-view
+//! initialisation (H/F), triangulation, PnP, Sim3, epipolar helpers, seeded RANSAC.
 
+mod align;
+pub mod epipolar;
+pub mod pnp;
 mod pose;
+pub mod ransac;
+pub mod sim3;
+pub mod triangulate;
+pub mod two_view;
 
+pub use align::{horn, umeyama};
 pub use pose::{CameraFromWorld, Se3, Sim3, WorldFromCamera};
