@@ -12,6 +12,7 @@ pub mod geometry;
 pub mod image;
 pub mod io;
 pub mod matching;
+pub mod optimize;
 pub mod runtime;
 pub mod synthetic;
 

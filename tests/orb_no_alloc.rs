@@ -1,42 +1,17 @@
-//! ORB extraction performs no heap allocation per frame once warmed up (a counting global
-//! allocator, counting only this test's thread).
+//! Per-frame paths allocate nothing once warmed up: ORB extraction and motion-only BA (a counting
+//! global allocator, counting only the test's own thread).
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+mod common;
 
+use common::counting_alloc::{allocations_in, Counting};
+use nalgebra::{Vector2, Vector3};
 use sdslam::camera::Frame;
 use sdslam::camera_model::PinholeRadtan;
 use sdslam::config::OrbConfig;
 use sdslam::features::{Features, OrbExtractor};
+use sdslam::geometry::{CameraFromWorld, Se3};
+use sdslam::optimize::MotionOnlyBa;
 use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
-
-struct Counting;
-
-thread_local! {
-    static COUNT: Cell<Option<u64>> = const { Cell::new(None) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = COUNT.try_with(|c| {
-            if let Some(n) = c.get() {
-                c.set(Some(n + 1));
-            }
-        });
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = COUNT.try_with(|c| {
-            if let Some(n) = c.get() {
-                c.set(Some(n + 1));
-            }
-        });
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
 
 #[global_allocator]
 static A: Counting = Counting;
@@ -64,11 +39,38 @@ fn extraction_allocates_nothing_after_the_first_frame() {
     let mut ex = OrbExtractor::new(640, 480, &OrbConfig::default());
     let mut out = Features::with_capacity(1000);
     ex.extract(&frames[0].gray, Some(&cam), &mut out); // warm-up
-    COUNT.with(|c| c.set(Some(0)));
-    for f in &frames[1..] {
-        ex.extract(&f.gray, Some(&cam), &mut out);
-        assert!(out.len() > 900, "{}", out.len());
-    }
-    let n = COUNT.with(|c| c.replace(None)).unwrap_or(0);
+    let (_, n) = allocations_in(|| {
+        for f in &frames[1..] {
+            ex.extract(&f.gray, Some(&cam), &mut out);
+            assert!(out.len() > 900, "{}", out.len());
+        }
+    });
     assert_eq!(n, 0, "{n} heap allocations in 4 extractions after warm-up");
+}
+
+#[test]
+fn motion_only_ba_allocates_nothing() {
+    let ba = MotionOnlyBa::new(520.0, 520.0, 320.0, 240.0);
+    let pts: Vec<Vector3<f64>> = (0..300)
+        .map(|i| {
+            Vector3::new(
+                (i % 20) as f64 * 0.1 - 1.0,
+                (i / 20) as f64 * 0.1 - 0.7,
+                3.0 + (i % 7) as f64 * 0.2,
+            )
+        })
+        .collect();
+    let obs: Vec<Vector2<f64>> = pts
+        .iter()
+        .map(|p| Vector2::new(520.0 * p.x / p.z + 320.5, 520.0 * p.y / p.z + 239.7))
+        .collect();
+    let inv = vec![1.0; 300];
+    let mut outlier = vec![false; 300];
+    let (_, n) = allocations_in(|| {
+        for _ in 0..3 {
+            let mut t = CameraFromWorld(Se3::identity());
+            ba.optimize(&mut t, &pts, &obs, &inv, &mut outlier);
+        }
+    });
+    assert_eq!(n, 0, "{n} heap allocations in 3 motion-only BA calls");
 }

@@ -38,3 +38,5 @@ pub fn sdslam(args: &[&str]) -> (bool, String, String) {
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
 }
+pub mod counting_alloc;
+pub mod problems;

@@ -1,0 +1,18 @@
+//! Optimisation: motion-only BA (tracking), bundle adjustment with a Schur complement on the
+//! points (local and global BA), and Sim3 pose-graph optimisation (loop correction).
+//!
+//! Perturbation convention (stated once for the whole module): **left** perturbation,
+//! `T <- Exp(δ) T`, with `δ = [ω, v]` for SE3 and `[ω, v, σ]` for Sim3, where
+//! `Exp(δ)` rotates by `exp(ω)`, scales by `e^σ` and then translates by `v`. With `p_c = T p_w`,
+//! `∂p_c/∂ω = -[p_c]x`, `∂p_c/∂v = I`.
+
+pub mod ba;
+pub mod lie;
+pub mod motion_only;
+pub mod pose_graph;
+pub mod robust;
+pub mod skyline;
+
+pub use ba::{BaObservation, BaOptions, BaProblem, BaReport, BundleAdjuster};
+pub use motion_only::{MotionOnlyBa, MotionOnlyConfig};
+pub use pose_graph::{PoseGraph, PoseGraphEdge, PoseGraphReport};

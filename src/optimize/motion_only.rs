@@ -1,0 +1,238 @@
+//! Motion-only bundle adjustment: the pose of one frame against fixed map points (tracking).
+//! ORB-SLAM's scheme: 4 rounds of up to 10 Levenberg-Marquardt iterations, Huber kernel
+//! (delta² = 5.991), observations re-classified as inliers/outliers by chi² 5.991 after each
+//! round, the kernel dropped for the last two rounds. Works on the stack: no allocation.
+
+use nalgebra::{SMatrix, SVector, Vector2, Vector3};
+
+use super::lie::{point_pose_jacobian, projection_jacobian, se3_retract};
+use super::robust::{huber_cost, huber_weight};
+use crate::geometry::CameraFromWorld;
+
+/// Parameters (ORB-SLAM's values).
+#[derive(Clone, Debug)]
+pub struct MotionOnlyConfig {
+    pub rounds: usize,
+    pub iterations: usize,
+    /// chi² gate (2 DoF, 95%) for inlier classification and the Huber threshold.
+    pub chi2: f64,
+    /// Rounds from which the robust kernel is off.
+    pub robust_rounds: usize,
+}
+
+impl Default for MotionOnlyConfig {
+    fn default() -> Self {
+        MotionOnlyConfig {
+            rounds: 4,
+            iterations: 10,
+            chi2: 5.991,
+            robust_rounds: 2,
+        }
+    }
+}
+
+/// Motion-only BA with the camera intrinsics of the undistorted pinhole.
+#[derive(Clone, Debug)]
+pub struct MotionOnlyBa {
+    pub config: MotionOnlyConfig,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl MotionOnlyBa {
+    pub fn new(fx: f64, fy: f64, cx: f64, cy: f64) -> Self {
+        MotionOnlyBa {
+            config: MotionOnlyConfig::default(),
+            fx,
+            fy,
+            cx,
+            cy,
+        }
+    }
+
+    #[inline]
+    fn residual(
+        &self,
+        t: &CameraFromWorld,
+        p: &Vector3<f64>,
+        obs: &Vector2<f64>,
+    ) -> Option<(Vector2<f64>, Vector3<f64>)> {
+        let pc = t.transform(p);
+        if pc.z <= 1e-6 {
+            return None;
+        }
+        let r = Vector2::new(
+            self.fx * pc.x / pc.z + self.cx - obs.x,
+            self.fy * pc.y / pc.z + self.cy - obs.y,
+        );
+        Some((r, pc))
+    }
+
+    fn cost(
+        &self,
+        t: &CameraFromWorld,
+        pts: &[Vector3<f64>],
+        obs: &[Vector2<f64>],
+        inv_s2: &[f64],
+        outlier: &[bool],
+        robust: bool,
+    ) -> f64 {
+        let mut c = 0.0;
+        for i in 0..pts.len() {
+            if outlier[i] {
+                continue;
+            }
+            let e2 = match self.residual(t, &pts[i], &obs[i]) {
+                Some((r, _)) => r.norm_squared() * inv_s2[i],
+                None => 1e6,
+            };
+            c += if robust {
+                huber_cost(e2, self.config.chi2)
+            } else {
+                e2
+            };
+        }
+        c
+    }
+
+    /// Optimises `t_cw` against fixed points `pts` observed at undistorted pixels `obs` with
+    /// information `inv_s2` (1/sigma² of the keypoint octave). `outlier` is read as the initial
+    /// classification and written with the final one. Returns the number of inliers.
+    pub fn optimize(
+        &self,
+        t_cw: &mut CameraFromWorld,
+        pts: &[Vector3<f64>],
+        obs: &[Vector2<f64>],
+        inv_s2: &[f64],
+        outlier: &mut [bool],
+    ) -> usize {
+        let n = pts
+            .len()
+            .min(obs.len())
+            .min(inv_s2.len())
+            .min(outlier.len());
+        let (pts, obs, inv_s2) = (&pts[..n], &obs[..n], &inv_s2[..n]);
+        let outlier = &mut outlier[..n];
+        let cfg = &self.config;
+        let mut inliers = 0;
+        for round in 0..cfg.rounds {
+            let robust = round < cfg.robust_rounds;
+            let mut cost = self.cost(t_cw, pts, obs, inv_s2, outlier, robust);
+            let mut lambda = 1e-5;
+            for _ in 0..cfg.iterations {
+                let mut h = SMatrix::<f64, 6, 6>::zeros();
+                let mut g = SVector::<f64, 6>::zeros();
+                for i in 0..n {
+                    if outlier[i] {
+                        continue;
+                    }
+                    let Some((r, pc)) = self.residual(t_cw, &pts[i], &obs[i]) else {
+                        continue;
+                    };
+                    let e2 = r.norm_squared() * inv_s2[i];
+                    let w = inv_s2[i]
+                        * if robust {
+                            huber_weight(e2, cfg.chi2)
+                        } else {
+                            1.0
+                        };
+                    let j = projection_jacobian(&pc, self.fx, self.fy) * point_pose_jacobian(&pc);
+                    h += j.transpose() * j * w;
+                    g += j.transpose() * r * w;
+                }
+                let mut improved = false;
+                for _ in 0..4 {
+                    let mut hd = h;
+                    for d in 0..6 {
+                        hd[(d, d)] += lambda * h[(d, d)].max(1e-9);
+                    }
+                    let Some(ch) = hd.cholesky() else {
+                        lambda *= 10.0;
+                        continue;
+                    };
+                    let dx = -ch.solve(&g);
+                    let cand = CameraFromWorld(se3_retract(
+                        &t_cw.0,
+                        &[dx[0], dx[1], dx[2], dx[3], dx[4], dx[5]],
+                    ));
+                    let c = self.cost(&cand, pts, obs, inv_s2, outlier, robust);
+                    if c <= cost {
+                        *t_cw = cand;
+                        improved = cost - c > 1e-9 * cost.max(1e-12) && dx.norm() > 1e-10;
+                        cost = c;
+                        lambda = (lambda * 0.2).max(1e-9);
+                        break;
+                    }
+                    lambda *= 10.0;
+                }
+                if !improved {
+                    break;
+                }
+            }
+            // Re-classify every observation (outliers may come back).
+            inliers = 0;
+            for i in 0..n {
+                let e2 = self
+                    .residual(t_cw, &pts[i], &obs[i])
+                    .map(|(r, _)| r.norm_squared() * inv_s2[i])
+                    .unwrap_or(f64::INFINITY);
+                outlier[i] = e2 > cfg.chi2;
+                inliers += (!outlier[i]) as usize;
+            }
+            if inliers < 10 {
+                break;
+            }
+        }
+        inliers
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Se3;
+    use nalgebra::{Point3, Translation3, UnitQuaternion};
+
+    #[test]
+    fn converges_from_a_perturbed_pose_and_flags_outliers() {
+        let truth = CameraFromWorld(Se3::from_parts(
+            Translation3::new(0.1, -0.2, 0.3),
+            UnitQuaternion::from_euler_angles(0.1, 0.2, -0.1),
+        ));
+        let ba = MotionOnlyBa::new(520.0, 520.0, 320.0, 240.0);
+        let mut s = 11u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut pts, mut obs, mut bad) = (Vec::new(), Vec::new(), Vec::new());
+        for i in 0..300 {
+            let pc = Vector3::new(rnd() * 4.0 - 2.0, rnd() * 3.0 - 1.5, 2.0 + 6.0 * rnd());
+            let pw = truth.inverse().0 * Point3::from(pc);
+            let mut u = Vector2::new(520.0 * pc.x / pc.z + 320.0, 520.0 * pc.y / pc.z + 240.0);
+            u += Vector2::new(rnd() - 0.5, rnd() - 0.5);
+            let is_bad = i % 10 == 0;
+            if is_bad {
+                u += Vector2::new(40.0, -30.0);
+            }
+            pts.push(pw.coords);
+            obs.push(u);
+            bad.push(is_bad);
+        }
+        let inv = vec![1.0; 300];
+        let mut out = vec![false; 300];
+        let mut t = CameraFromWorld(se3_retract(
+            &truth.0,
+            &[0.02, -0.03, 0.01, 0.05, 0.03, -0.04],
+        ));
+        let n = ba.optimize(&mut t, &pts, &obs, &inv, &mut out);
+        assert!(t.0.rotation.angle_to(&truth.0.rotation) < 1e-3);
+        assert!((t.0.translation.vector - truth.0.translation.vector).norm() < 5e-3);
+        assert_eq!(out, bad, "outliers are exactly the corrupted observations");
+        assert_eq!(n, 270);
+    }
+}
