@@ -12,7 +12,9 @@ pub mod motion_only;
 pub mod pose_graph;
 pub mod robust;
 pub mod skyline;
+pub mod two_view_ba;
 
 pub use ba::{BaObservation, BaOptions, BaProblem, BaReport, BundleAdjuster};
 pub use motion_only::{MotionOnlyBa, MotionOnlyConfig};
 pub use pose_graph::{PoseGraph, PoseGraphEdge, PoseGraphReport};
+pub use two_view_ba::refine_two_view;
