@@ -68,7 +68,7 @@ pub fn refine_two_view(
     );
     let t = p.poses[1].0;
     let s = t.translation.vector.norm();
-    if !(s > 1e-9) {
+    if s.is_nan() || s <= 1e-9 {
         return;
     }
     m.t_21 = Se3::from_parts(
