@@ -1,8 +1,12 @@
-//! Sparse symmetric positive-definite solver for the reduced camera system and the pose graph:
-//! reverse Cuthill-McKee ordering of the block graph, then an in-place skyline (profile)
-//! Cholesky. Keyframe graphs are chains with local covisibility (and loop edges, which RCM keeps
-//! close), so the profile stays narrow; a dense matrix is the special case of a full profile.
+//! Symmetric positive-definite solver for the reduced camera system and the pose graph: dense
+//! Cholesky (packed lower triangle) for small systems, and for large ones reverse Cuthill-McKee
+//! ordering of the block graph followed by an in-place skyline (profile) Cholesky. Keyframe
+//! graphs are chains with local covisibility (loop edges stay near the band after RCM), so the
+//! profile stays narrow.
 //! Buffers are reused between solves of the same size.
+
+/// Up to this many blocks the system is factorised densely.
+pub const DENSE_MAX_BLOCKS: usize = 16;
 
 /// Dot product with four independent accumulators, so the reduction vectorises (a single
 /// floating-point accumulator forces sequential adds).
@@ -128,10 +132,15 @@ impl BlockSystem {
         for (new, &old) in self.perm.iter().enumerate() {
             self.inv_perm[old] = new;
         }
-        // Profile: first non-zero column of each scalar row (permuted order).
+        // Profile: first non-zero column of each scalar row (permuted order). Small systems
+        // (local BA windows) take the full profile: a dense packed Cholesky, no ordering gain to
+        // be had; large ones keep the RCM skyline.
         let dim = n * b;
         self.first.clear();
         self.first.resize(dim, usize::MAX);
+        if n <= DENSE_MAX_BLOCKS {
+            self.first.fill(0);
+        }
         for (i, nb) in adj.iter().enumerate() {
             let pi = self.inv_perm[i];
             let lo = nb
@@ -139,7 +148,7 @@ impl BlockSystem {
                 .map(|&j| self.inv_perm[j as usize])
                 .fold(pi, usize::min);
             for r in 0..b {
-                self.first[pi * b + r] = lo * b;
+                self.first[pi * b + r] = self.first[pi * b + r].min(lo * b);
             }
         }
         self.start.clear();
