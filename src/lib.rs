@@ -11,6 +11,7 @@ pub mod features;
 pub mod geometry;
 pub mod image;
 pub mod io;
+pub mod map;
 pub mod matching;
 pub mod optimize;
 pub mod runtime;

@@ -1,0 +1,99 @@
+//! Keyframes: a pose, the frame's features, their map-point associations, the grey image for
+//! semi-dense mapping, and the keyframe's place in the covisibility graph and spanning tree.
+//! Buffers are reserved once and reused when the slot is recycled.
+
+use super::{KeyFrameId, MapPointId};
+use crate::features::{Descriptor, KeyPoint};
+use crate::geometry::CameraFromWorld;
+use crate::matching::FeatureGrid;
+
+pub struct KeyFrame {
+    /// Creation order (monotonic over the whole run; never reused).
+    pub serial: u64,
+    /// Index of the frame it was made from.
+    pub frame_index: u64,
+    pub timestamp: f64,
+    pub t_cw: CameraFromWorld,
+    pub keypoints: Vec<KeyPoint>,
+    pub descriptors: Vec<Descriptor>,
+    /// Per keypoint: the map point it observes.
+    pub points: Vec<Option<MapPointId>>,
+    pub grid: FeatureGrid,
+    /// Undistorted grey image (semi-dense mapping, relocalisation checks).
+    pub gray: Vec<u8>,
+    /// Colour, when the source has it (colours the semi-dense cloud).
+    pub rgb: Vec<u8>,
+    pub has_color: bool,
+    /// Covisible keyframes with shared-point counts, strongest first.
+    pub covisibles: Vec<(KeyFrameId, u32)>,
+    /// Spanning tree.
+    pub parent: Option<KeyFrameId>,
+    pub children: Vec<KeyFrameId>,
+    /// Loop-closure edges (part of the essential graph).
+    pub loop_edges: Vec<KeyFrameId>,
+}
+
+impl KeyFrame {
+    /// Reserves buffers for `max_features` keypoints and `width` x `height` images.
+    pub fn with_capacity(max_features: usize, width: usize, height: usize) -> Self {
+        let grid_cols = (width / 10).max(1);
+        let grid_rows = (height / 10).max(1);
+        KeyFrame {
+            serial: 0,
+            frame_index: 0,
+            timestamp: 0.0,
+            t_cw: CameraFromWorld::identity(),
+            keypoints: Vec::with_capacity(max_features),
+            descriptors: Vec::with_capacity(max_features),
+            points: Vec::with_capacity(max_features),
+            grid: FeatureGrid::new(
+                grid_cols,
+                grid_rows,
+                (0.0, 0.0, width as f32, height as f32),
+                max_features,
+            ),
+            gray: Vec::with_capacity(width * height),
+            rgb: Vec::with_capacity(width * height * 3),
+            has_color: false,
+            covisibles: Vec::with_capacity(64),
+            parent: None,
+            children: Vec::with_capacity(8),
+            loop_edges: Vec::new(),
+        }
+    }
+
+    /// Clears the contents, keeping every buffer's capacity.
+    pub fn clear(&mut self) {
+        self.keypoints.clear();
+        self.descriptors.clear();
+        self.points.clear();
+        self.gray.clear();
+        self.rgb.clear();
+        self.has_color = false;
+        self.covisibles.clear();
+        self.parent = None;
+        self.children.clear();
+        self.loop_edges.clear();
+    }
+
+    /// Map points observed, with their keypoint index.
+    pub fn observed(&self) -> impl Iterator<Item = (usize, MapPointId)> + '_ {
+        self.points
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| p.map(|p| (i, p)))
+    }
+
+    /// The `n` strongest covisible keyframes.
+    pub fn best_covisibles(&self, n: usize) -> impl Iterator<Item = KeyFrameId> + '_ {
+        self.covisibles.iter().take(n).map(|&(k, _)| k)
+    }
+
+    /// Covisibility weight with `other` (0 when not connected).
+    pub fn weight_with(&self, other: KeyFrameId) -> u32 {
+        self.covisibles
+            .iter()
+            .find(|(k, _)| *k == other)
+            .map_or(0, |&(_, w)| w)
+    }
+}

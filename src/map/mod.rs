@@ -1,0 +1,499 @@
+//! The map: keyframes and map points in fixed-capacity arenas addressed by generational
+//! handles, their observations, the covisibility graph (edges of weight >= 15 shared points),
+//! the spanning tree and the essential graph. Capacities come from the configuration; a full
+//! arena is an error the caller answers by culling, never by growing. Slot buffers are recycled
+//! through pools, so a steady-state map does not allocate.
+
+mod arena;
+mod keyframe;
+mod map_point;
+
+pub use arena::{Arena, ArenaFull, Handle};
+pub use keyframe::KeyFrame;
+pub use map_point::MapPoint;
+
+use nalgebra::Vector3;
+
+use crate::matching::hamming;
+
+pub type KeyFrameId = Handle<KeyFrame>;
+pub type MapPointId = Handle<MapPoint>;
+
+/// Capacities and pyramid geometry the map needs.
+#[derive(Clone, Debug)]
+pub struct MapConfig {
+    pub max_keyframes: usize,
+    pub max_map_points: usize,
+    pub max_features: usize,
+    pub width: usize,
+    pub height: usize,
+    pub scale_factor: f64,
+    pub n_levels: usize,
+    /// Minimum shared points for a covisibility edge (ORB-SLAM: 15).
+    pub covisibility_min_weight: u32,
+    /// Minimum weight of covisibility edges kept in the essential graph (ORB-SLAM: 100).
+    pub essential_min_weight: u32,
+}
+
+impl Default for MapConfig {
+    fn default() -> Self {
+        MapConfig {
+            max_keyframes: 500,
+            max_map_points: 100_000,
+            max_features: 2000,
+            width: 640,
+            height: 480,
+            scale_factor: 1.2,
+            n_levels: 8,
+            covisibility_min_weight: 15,
+            essential_min_weight: 100,
+        }
+    }
+}
+
+/// The map is at capacity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum MapFull {
+    #[error("keyframe capacity ({0}) reached")]
+    KeyFrames(usize),
+    #[error("map point capacity ({0}) reached")]
+    MapPoints(usize),
+}
+
+pub struct Map {
+    pub config: MapConfig,
+    keyframes: Arena<KeyFrame>,
+    points: Arena<MapPoint>,
+    kf_pool: Vec<KeyFrame>,
+    mp_pool: Vec<MapPoint>,
+    next_serial: u64,
+    /// Scratch for covisibility counting (indexed by keyframe slot).
+    counts: Vec<u32>,
+    touched: Vec<usize>,
+}
+
+impl Map {
+    /// Allocates every keyframe and map-point buffer up front.
+    pub fn new(config: MapConfig) -> Self {
+        let kf_pool = (0..config.max_keyframes)
+            .map(|_| KeyFrame::with_capacity(config.max_features, config.width, config.height))
+            .collect();
+        let mp_pool = (0..config.max_map_points)
+            .map(|_| MapPoint::with_capacity(8))
+            .collect();
+        Map {
+            keyframes: Arena::with_capacity(config.max_keyframes),
+            points: Arena::with_capacity(config.max_map_points),
+            kf_pool,
+            mp_pool,
+            next_serial: 0,
+            counts: vec![0; config.max_keyframes],
+            touched: Vec::with_capacity(config.max_keyframes),
+            config,
+        }
+    }
+
+    pub fn keyframe(&self, id: KeyFrameId) -> Option<&KeyFrame> {
+        self.keyframes.get(id)
+    }
+    pub fn keyframe_mut(&mut self, id: KeyFrameId) -> Option<&mut KeyFrame> {
+        self.keyframes.get_mut(id)
+    }
+    pub fn point(&self, id: MapPointId) -> Option<&MapPoint> {
+        self.points.get(id)
+    }
+    pub fn point_mut(&mut self, id: MapPointId) -> Option<&mut MapPoint> {
+        self.points.get_mut(id)
+    }
+    pub fn keyframes(&self) -> impl Iterator<Item = (KeyFrameId, &KeyFrame)> {
+        self.keyframes.iter()
+    }
+    pub fn points(&self) -> impl Iterator<Item = (MapPointId, &MapPoint)> {
+        self.points.iter()
+    }
+    pub fn n_keyframes(&self) -> usize {
+        self.keyframes.len()
+    }
+    pub fn n_points(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Takes a recycled keyframe buffer, lets `fill` set it up, and stores it. `fill` must set
+    /// `points` to one entry per keypoint (the map resizes it if not).
+    pub fn insert_keyframe(
+        &mut self,
+        fill: impl FnOnce(&mut KeyFrame),
+    ) -> Result<KeyFrameId, MapFull> {
+        let cap = self.keyframes.capacity();
+        let mut kf = self.kf_pool.pop().ok_or(MapFull::KeyFrames(cap))?;
+        kf.clear();
+        fill(&mut kf);
+        kf.points.resize(kf.keypoints.len(), None);
+        kf.grid.assign(&kf.keypoints);
+        kf.serial = self.next_serial;
+        self.next_serial += 1;
+        self.keyframes.insert(kf).map_err(|(_, kf)| {
+            self.kf_pool.push(kf);
+            MapFull::KeyFrames(cap)
+        })
+    }
+
+    /// Stores a new point at `position` (world), created by keyframe `reference`.
+    pub fn insert_point(
+        &mut self,
+        position: Vector3<f64>,
+        reference: KeyFrameId,
+    ) -> Result<MapPointId, MapFull> {
+        let cap = self.points.capacity();
+        let mut mp = self.mp_pool.pop().ok_or(MapFull::MapPoints(cap))?;
+        mp.clear();
+        mp.position = position;
+        mp.reference_kf = Some(reference);
+        mp.first_kf_serial = self.keyframes.get(reference).map_or(0, |k| k.serial);
+        self.points.insert(mp).map_err(|(_, mp)| {
+            self.mp_pool.push(mp);
+            MapFull::MapPoints(cap)
+        })
+    }
+
+    /// Records that keypoint `idx` of `kf` observes `mp`.
+    pub fn add_observation(&mut self, mp: MapPointId, kf: KeyFrameId, idx: usize) -> bool {
+        let Some(k) = self.keyframes.get_mut(kf) else {
+            return false;
+        };
+        if idx >= k.points.len() || !self.points.contains(mp) {
+            return false;
+        }
+        if let Some(old) = k.points[idx] {
+            if old == mp {
+                return true;
+            }
+            if let Some(o) = self.points.get_mut(old) {
+                o.observations.retain(|&(f, _)| f != kf);
+            }
+        }
+        k.points[idx] = Some(mp);
+        let Some(p) = self.points.get_mut(mp) else {
+            return false;
+        };
+        p.observations.retain(|&(f, _)| f != kf);
+        p.observations.push((kf, idx as u32));
+        true
+    }
+
+    /// Removes the observation of `mp` by `kf`; a point left with fewer than 2 observations is
+    /// erased (it can no longer be triangulated).
+    pub fn erase_observation(&mut self, mp: MapPointId, kf: KeyFrameId) {
+        let Some(p) = self.points.get_mut(mp) else {
+            return;
+        };
+        let mut idx = None;
+        p.observations.retain(|&(f, i)| {
+            if f == kf {
+                idx = Some(i as usize);
+                false
+            } else {
+                true
+            }
+        });
+        let remaining = p.observations.len();
+        if p.reference_kf == Some(kf) {
+            p.reference_kf = p.observations.first().map(|&(f, _)| f);
+        }
+        if let (Some(i), Some(k)) = (idx, self.keyframes.get_mut(kf)) {
+            if k.points.get(i).copied().flatten() == Some(mp) {
+                k.points[i] = None;
+            }
+        }
+        if remaining < 2 {
+            self.erase_point(mp);
+        }
+    }
+
+    /// Erases a point and every association to it; its buffer returns to the pool.
+    pub fn erase_point(&mut self, mp: MapPointId) {
+        let Some(mut p) = self.points.remove(mp) else {
+            return;
+        };
+        for &(kf, i) in &p.observations {
+            if let Some(k) = self.keyframes.get_mut(kf) {
+                if k.points.get(i as usize).copied().flatten() == Some(mp) {
+                    k.points[i as usize] = None;
+                }
+            }
+        }
+        p.clear();
+        self.mp_pool.push(p);
+    }
+
+    /// Merges `old` into `new` (duplicate fusion): observations move to `new` unless that
+    /// keyframe already sees `new`; `old` is erased.
+    pub fn replace_point(&mut self, old: MapPointId, new: MapPointId) {
+        if old == new || !self.points.contains(new) {
+            return;
+        }
+        let Some(p) = self.points.get(old) else {
+            return;
+        };
+        let obs: Vec<(KeyFrameId, u32)> = p.observations.clone();
+        let (visible, found) = (p.visible, p.found);
+        for (kf, i) in obs {
+            let already = self
+                .points
+                .get(new)
+                .is_some_and(|n| n.observations.iter().any(|&(f, _)| f == kf));
+            if let Some(k) = self.keyframes.get_mut(kf) {
+                k.points[i as usize] = None;
+            }
+            if !already {
+                self.add_observation(new, kf, i as usize);
+            }
+        }
+        if let Some(n) = self.points.get_mut(new) {
+            n.visible += visible;
+            n.found += found;
+        }
+        if let Some(mut p) = self.points.remove(old) {
+            p.clear();
+            self.mp_pool.push(p);
+        }
+        self.update_point_geometry(new);
+    }
+
+    /// Recomputes a point's mean viewing direction, distance range and representative
+    /// descriptor from its observations.
+    pub fn update_point_geometry(&mut self, mp: MapPointId) {
+        let Some(p) = self.points.get(mp) else { return };
+        let pos = p.position;
+        let mut normal = Vector3::zeros();
+        let mut n = 0;
+        let mut best_desc = None;
+        let mut best_median = u32::MAX;
+        let descs: Vec<crate::features::Descriptor> = p
+            .observations
+            .iter()
+            .filter_map(|&(kf, i)| {
+                self.keyframes
+                    .get(kf)
+                    .and_then(|k| k.descriptors.get(i as usize).copied())
+            })
+            .collect();
+        for &(kf, _) in &p.observations {
+            if let Some(k) = self.keyframes.get(kf) {
+                let c = k.t_cw.center();
+                normal += (pos - c).normalize();
+                n += 1;
+            }
+        }
+        for d in &descs {
+            let mut dist: Vec<u32> = descs.iter().map(|e| hamming(d, e)).collect();
+            dist.sort_unstable();
+            let m = dist[(dist.len() - 1) / 2];
+            if m < best_median {
+                best_median = m;
+                best_desc = Some(*d);
+            }
+        }
+        let reference = p.reference_kf.and_then(|r| {
+            self.keyframes.get(r).map(|k| {
+                (
+                    k,
+                    p.observations
+                        .iter()
+                        .find(|&&(f, _)| f == r)
+                        .map(|&(_, i)| i),
+                )
+            })
+        });
+        let (sf, nl) = (self.config.scale_factor, self.config.n_levels);
+        let range = reference.and_then(|(k, i)| {
+            let kp = k.keypoints.get(i? as usize)?;
+            let dist = (pos - k.t_cw.center()).norm();
+            let max = dist * sf.powi(kp.octave as i32);
+            Some((max / sf.powi(nl as i32 - 1), max))
+        });
+        let Some(p) = self.points.get_mut(mp) else {
+            return;
+        };
+        if n > 0 {
+            p.normal = (normal / n as f64).normalize();
+        }
+        if let Some(d) = best_desc {
+            p.descriptor = d;
+        }
+        if let Some((lo, hi)) = range {
+            p.min_distance = lo;
+            p.max_distance = hi;
+        }
+    }
+
+    /// Recomputes `kf`'s covisibility edges (weight = shared points; edges of weight >= the
+    /// configured minimum, or the single strongest if none reaches it), updates the neighbours'
+    /// lists, and on first connection sets the spanning-tree parent (the strongest neighbour).
+    pub fn update_connections(&mut self, kf: KeyFrameId) {
+        let Some(k) = self.keyframes.get(kf) else {
+            return;
+        };
+        self.touched.clear();
+        for (_, mp) in k.observed() {
+            let Some(p) = self.points.get(mp) else {
+                continue;
+            };
+            for &(other, _) in &p.observations {
+                if other == kf || !self.keyframes.contains(other) {
+                    continue;
+                }
+                let s = other.index();
+                if self.counts[s] == 0 {
+                    self.touched.push(s);
+                }
+                self.counts[s] += 1;
+            }
+        }
+        let handles: Vec<(KeyFrameId, u32)> = self
+            .touched
+            .iter()
+            .filter_map(|&s| {
+                self.keyframes
+                    .handles()
+                    .find(|h| h.index() == s)
+                    .map(|h| (h, self.counts[s]))
+            })
+            .collect();
+        for &s in &self.touched {
+            self.counts[s] = 0;
+        }
+        let min_w = self.config.covisibility_min_weight;
+        let mut edges: Vec<(KeyFrameId, u32)> = handles
+            .iter()
+            .copied()
+            .filter(|&(_, w)| w >= min_w)
+            .collect();
+        if edges.is_empty() {
+            if let Some(&best) = handles.iter().max_by_key(|&&(_, w)| w) {
+                edges.push(best);
+            }
+        }
+        edges.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+        for &(other, w) in &edges {
+            if let Some(o) = self.keyframes.get_mut(other) {
+                o.covisibles.retain(|&(f, _)| f != kf);
+                o.covisibles.push((kf, w));
+                o.covisibles
+                    .sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+            }
+        }
+        // A keyframe joins the spanning tree the first time it gets an older neighbour (the root,
+        // the first keyframe, has none and stays the root).
+        let first_connection = self.keyframes.get(kf).is_some_and(|k| k.parent.is_none());
+        if let Some(k) = self.keyframes.get_mut(kf) {
+            k.covisibles.clear();
+            k.covisibles.extend_from_slice(&edges);
+        }
+        if first_connection {
+            // The parent must be older (the tree is rooted at the first keyframe).
+            let serial = self.keyframes.get(kf).map_or(0, |k| k.serial);
+            let parent = edges
+                .iter()
+                .map(|&(f, _)| f)
+                .find(|&f| self.keyframes.get(f).is_some_and(|o| o.serial < serial));
+            if let Some(p) = parent {
+                if let Some(k) = self.keyframes.get_mut(kf) {
+                    k.parent = Some(p);
+                }
+                if let Some(pk) = self.keyframes.get_mut(p) {
+                    pk.children.push(kf);
+                }
+            }
+        }
+    }
+
+    /// Erases a keyframe: its observations go (points left with < 2 observations are erased),
+    /// neighbours drop it, and its children are re-parented to the most covisible keyframe
+    /// already in the tree (ORB-SLAM's spanning-tree repair). The first keyframe is never erased.
+    pub fn erase_keyframe(&mut self, kf: KeyFrameId) -> bool {
+        let Some(k) = self.keyframes.get(kf) else {
+            return false;
+        };
+        if k.parent.is_none() {
+            return false; // root
+        }
+        let observed: Vec<MapPointId> = k.observed().map(|(_, p)| p).collect();
+        let neighbours: Vec<KeyFrameId> = k.covisibles.iter().map(|&(f, _)| f).collect();
+        let mut children = k.children.clone();
+        let parent = k.parent;
+        for mp in observed {
+            self.erase_observation(mp, kf);
+        }
+        for n in neighbours {
+            if let Some(o) = self.keyframes.get_mut(n) {
+                o.covisibles.retain(|&(f, _)| f != kf);
+            }
+        }
+        // Re-parent children: repeatedly attach the child with the strongest link to a keyframe
+        // already in the tree (the erased one's parent seeds the set).
+        let mut in_tree: Vec<KeyFrameId> = parent.into_iter().collect();
+        while !children.is_empty() {
+            let mut best: Option<(usize, KeyFrameId, u32)> = None;
+            for (ci, &c) in children.iter().enumerate() {
+                let Some(ck) = self.keyframes.get(c) else {
+                    continue;
+                };
+                for &(f, w) in &ck.covisibles {
+                    if in_tree.contains(&f) && best.is_none_or(|(_, _, bw)| w > bw) {
+                        best = Some((ci, f, w));
+                    }
+                }
+            }
+            let (ci, new_parent) = match best {
+                Some((ci, f, _)) => (ci, f),
+                // No link to the tree: attach to the erased keyframe's parent.
+                None => match parent {
+                    Some(p) => (0, p),
+                    None => break,
+                },
+            };
+            let c = children.swap_remove(ci);
+            if let Some(ck) = self.keyframes.get_mut(c) {
+                ck.parent = Some(new_parent);
+            }
+            if let Some(pk) = self.keyframes.get_mut(new_parent) {
+                pk.children.push(c);
+            }
+            in_tree.push(c);
+        }
+        if let Some(p) = parent.and_then(|p| self.keyframes.get_mut(p)) {
+            p.children.retain(|&c| c != kf);
+        }
+        if let Some(mut k) = self.keyframes.remove(kf) {
+            k.clear();
+            self.kf_pool.push(k);
+        }
+        true
+    }
+
+    /// Essential-graph edges (each once): spanning tree, covisibility >= `essential_min_weight`,
+    /// and loop edges.
+    pub fn essential_edges(&self) -> Vec<(KeyFrameId, KeyFrameId)> {
+        let mut out = Vec::new();
+        for (id, k) in self.keyframes.iter() {
+            if let Some(p) = k.parent {
+                out.push((p.min(id), p.max(id)));
+            }
+            for &(f, w) in &k.covisibles {
+                if w >= self.config.essential_min_weight {
+                    out.push((f.min(id), f.max(id)));
+                }
+            }
+            for &l in &k.loop_edges {
+                out.push((l.min(id), l.max(id)));
+            }
+        }
+        out.sort();
+        out.dedup();
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests;

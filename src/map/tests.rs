@@ -1,0 +1,161 @@
+use super::*;
+use crate::features::KeyPoint;
+
+fn small() -> MapConfig {
+    MapConfig {
+        max_keyframes: 8,
+        max_map_points: 200,
+        max_features: 100,
+        width: 64,
+        height: 48,
+        ..MapConfig::default()
+    }
+}
+
+/// A keyframe with `n` keypoints spread over the image, camera at x = `x`.
+fn add_kf(map: &mut Map, n: usize, x: f64) -> KeyFrameId {
+    map.insert_keyframe(|k| {
+        for i in 0..n {
+            let kp = KeyPoint {
+                x: (i % 60) as f32,
+                y: (i / 60) as f32,
+                ux: (i % 60) as f32,
+                uy: (i / 60) as f32,
+                ..Default::default()
+            };
+            k.keypoints.push(kp);
+            k.descriptors.push([i as u64, 0, 0, 0]);
+        }
+        k.t_cw = crate::geometry::WorldFromCamera::from_parts(
+            Vector3::new(x, 0.0, 0.0),
+            nalgebra::UnitQuaternion::identity(),
+        )
+        .inverse();
+    })
+    .unwrap()
+}
+
+/// Points 0..n seen by both keyframes at the same keypoint index.
+fn share(map: &mut Map, a: KeyFrameId, b: KeyFrameId, range: std::ops::Range<usize>) {
+    for i in range {
+        let p = map
+            .insert_point(Vector3::new(i as f64 * 0.01, 0.0, 3.0), a)
+            .unwrap();
+        map.add_observation(p, a, i);
+        map.add_observation(p, b, i);
+    }
+}
+
+#[test]
+fn covisibility_weights_threshold_and_parent() {
+    let mut m = Map::new(small());
+    let k0 = add_kf(&mut m, 100, 0.0);
+    let k1 = add_kf(&mut m, 100, 0.1);
+    let k2 = add_kf(&mut m, 100, 0.2);
+    share(&mut m, k0, k1, 0..40);
+    share(&mut m, k1, k2, 40..50); // 10 < 15: weak
+    m.update_connections(k1);
+    m.update_connections(k2);
+    let c1 = &m.keyframe(k1).unwrap().covisibles;
+    assert_eq!(c1[0], (k0, 40));
+    // k2's only neighbour is weak but kept as the single strongest.
+    assert_eq!(m.keyframe(k2).unwrap().covisibles, vec![(k1, 10)]);
+    assert_eq!(m.keyframe(k1).unwrap().parent, Some(k0));
+    assert_eq!(m.keyframe(k2).unwrap().parent, Some(k1));
+    assert_eq!(m.keyframe(k0).unwrap().weight_with(k1), 40);
+    assert!(m.keyframe(k0).unwrap().children.contains(&k1));
+}
+
+#[test]
+fn erasing_a_keyframe_reparents_children_and_drops_orphan_points() {
+    let mut m = Map::new(small());
+    let k0 = add_kf(&mut m, 100, 0.0);
+    let k1 = add_kf(&mut m, 100, 0.1);
+    let k2 = add_kf(&mut m, 100, 0.2);
+    share(&mut m, k0, k1, 0..30);
+    share(&mut m, k1, k2, 30..60);
+    share(&mut m, k0, k2, 60..80);
+    for k in [k1, k2] {
+        m.update_connections(k);
+    }
+    assert_eq!(m.keyframe(k2).unwrap().parent, Some(k1));
+    let points_before = m.n_points();
+    assert!(m.erase_keyframe(k1));
+    assert!(m.keyframe(k1).is_none());
+    // k2 re-attached to k0 (its only tree neighbour).
+    assert_eq!(m.keyframe(k2).unwrap().parent, Some(k0));
+    assert!(m.keyframe(k0).unwrap().children.contains(&k2));
+    // Points seen by k1 and one other keyframe lost their second view: erased.
+    assert_eq!(m.n_points(), points_before - 60);
+    assert!(m.keyframe(k2).unwrap().points[30].is_none());
+    assert!(m.keyframe(k2).unwrap().points[60].is_some());
+    // The root cannot be erased.
+    assert!(!m.erase_keyframe(k0));
+}
+
+#[test]
+fn capacity_is_fixed_and_slots_recycle() {
+    let mut m = Map::new(MapConfig {
+        max_keyframes: 2,
+        ..small()
+    });
+    let k0 = add_kf(&mut m, 10, 0.0);
+    let k1 = add_kf(&mut m, 10, 0.1);
+    assert_eq!(
+        m.insert_keyframe(|_| {}).unwrap_err(),
+        MapFull::KeyFrames(2)
+    );
+    share(&mut m, k0, k1, 0..20);
+    m.update_connections(k1);
+    assert!(m.erase_keyframe(k1));
+    let k2 = add_kf(&mut m, 10, 0.2);
+    assert_eq!(k2.index(), k1.index());
+    assert!(m.keyframe(k1).is_none(), "the old handle stays stale");
+    assert!(m.keyframe(k2).unwrap().serial > m.keyframe(k0).unwrap().serial);
+}
+
+#[test]
+fn fusion_moves_observations_and_geometry_updates() {
+    let mut m = Map::new(small());
+    let k0 = add_kf(&mut m, 100, 0.0);
+    let k1 = add_kf(&mut m, 100, 0.5);
+    let k2 = add_kf(&mut m, 100, 1.0);
+    let a = m.insert_point(Vector3::new(0.0, 0.0, 3.0), k0).unwrap();
+    m.add_observation(a, k0, 5);
+    m.add_observation(a, k1, 6);
+    let b = m.insert_point(Vector3::new(0.0, 0.0, 3.0), k2).unwrap();
+    m.add_observation(b, k2, 7);
+    m.add_observation(b, k1, 8);
+    m.replace_point(b, a);
+    assert!(m.point(b).is_none());
+    let p = m.point(a).unwrap();
+    assert_eq!(p.observations.len(), 3, "k2 moved over; k1 already saw a");
+    assert_eq!(m.keyframe(k2).unwrap().points[7], Some(a));
+    assert_eq!(m.keyframe(k1).unwrap().points[8], None);
+    assert!(p.max_distance > p.min_distance && p.max_distance.is_finite());
+    assert!((p.normal.norm() - 1.0).abs() < 1e-9);
+}
+
+#[test]
+fn essential_graph_keeps_tree_strong_and_loop_edges() {
+    let mut m = Map::new(MapConfig {
+        essential_min_weight: 50,
+        ..small()
+    });
+    let k0 = add_kf(&mut m, 100, 0.0);
+    let k1 = add_kf(&mut m, 100, 0.1);
+    let k2 = add_kf(&mut m, 100, 0.2);
+    share(&mut m, k0, k1, 0..60);
+    share(&mut m, k1, k2, 60..90);
+    share(&mut m, k0, k2, 90..100);
+    m.update_connections(k1);
+    m.update_connections(k2);
+    assert_eq!(m.keyframe(k2).unwrap().parent, Some(k1));
+    // Weak k0-k2 covisibility (10 < 50) enters only as a loop edge.
+    m.keyframe_mut(k2).unwrap().loop_edges.push(k0);
+    let e = m.essential_edges();
+    assert!(e.contains(&(k0.min(k1), k0.max(k1))));
+    assert!(e.contains(&(k1.min(k2), k1.max(k2))));
+    assert!(e.contains(&(k0.min(k2), k0.max(k2))), "loop edge");
+    assert_eq!(e.len(), 3);
+}
