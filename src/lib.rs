@@ -16,6 +16,7 @@ pub mod matching;
 pub mod optimize;
 pub mod runtime;
 pub mod synthetic;
+pub mod tracking;
 
 pub use config::Config;
 pub use error::{Error, Result};

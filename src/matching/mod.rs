@@ -4,6 +4,7 @@
 mod grid;
 mod hamming;
 mod rotation;
+pub mod search;
 
 pub use grid::FeatureGrid;
 pub use hamming::{hamming, passes_ratio, TH_HIGH, TH_LOW};

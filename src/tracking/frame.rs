@@ -1,0 +1,51 @@
+//! The frame being tracked: its features, pose estimate and map-point matches, in buffers reused
+//! from frame to frame.
+
+use crate::features::Features;
+use crate::geometry::CameraFromWorld;
+use crate::map::MapPointId;
+use crate::matching::FeatureGrid;
+
+pub struct TrackedFrame {
+    pub index: u64,
+    pub timestamp: f64,
+    pub features: Features,
+    pub grid: FeatureGrid,
+    pub t_cw: CameraFromWorld,
+    /// Per keypoint: the matched map point.
+    pub points: Vec<Option<MapPointId>>,
+    /// Per keypoint: rejected by the last pose optimisation.
+    pub outlier: Vec<bool>,
+}
+
+impl TrackedFrame {
+    pub fn new(max_features: usize, width: usize, height: usize) -> Self {
+        TrackedFrame {
+            index: 0,
+            timestamp: 0.0,
+            features: Features::with_capacity(max_features),
+            grid: FeatureGrid::new((width / 10).max(1), (height / 10).max(1), (0.0, 0.0, width as f32, height as f32), max_features),
+            t_cw: CameraFromWorld::identity(),
+            points: Vec::with_capacity(max_features),
+            outlier: Vec::with_capacity(max_features),
+        }
+    }
+
+    /// Resets matches after new features were extracted.
+    pub fn reset_matches(&mut self) {
+        self.points.clear();
+        self.points.resize(self.features.len(), None);
+        self.outlier.clear();
+        self.outlier.resize(self.features.len(), false);
+        self.grid.assign(&self.features.keypoints);
+    }
+
+    /// Matched map points that survived the last optimisation.
+    pub fn inlier_points(&self) -> impl Iterator<Item = (usize, MapPointId)> + '_ {
+        self.points.iter().enumerate().filter_map(|(i, p)| p.filter(|_| !self.outlier[i]).map(|p| (i, p)))
+    }
+
+    pub fn n_inliers(&self) -> usize {
+        self.inlier_points().count()
+    }
+}

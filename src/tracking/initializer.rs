@@ -1,0 +1,105 @@
+//! Monocular initialisation: match a reference frame to later frames in a window, recover the
+//! two-view motion (H/F), refine it by two-view BA, and build the first two keyframes.
+
+use nalgebra::{Matrix3, Vector2};
+
+use super::frame::TrackedFrame;
+use crate::features::Features;
+use crate::geometry::two_view::{initialize, TwoViewConfig, TwoViewError, TwoViewMotion};
+use crate::matching::search::search_for_initialization;
+use crate::matching::FeatureGrid;
+use crate::optimize::refine_two_view;
+
+/// Why an initialisation attempt did not produce a map (a state, not an error).
+#[derive(Clone, Debug, PartialEq)]
+pub enum InitAttempt {
+    /// The frame became the new reference.
+    NewReference,
+    TooFewMatches(usize),
+    Failed(TwoViewError),
+    Ready,
+}
+
+pub struct Initializer {
+    pub reference: Option<Features>,
+    pub reference_index: u64,
+    pub reference_timestamp: f64,
+    pub reference_gray: Vec<u8>,
+    pub reference_rgb: Vec<u8>,
+    pub reference_has_color: bool,
+    grid: FeatureGrid,
+    matches: Vec<Option<u32>>,
+    pub config: TwoViewConfig,
+    /// Minimum features in a reference frame and minimum matches to attempt (ORB-SLAM: 100).
+    pub min_matches: usize,
+}
+
+impl Initializer {
+    pub fn new(max_features: usize, width: usize, height: usize) -> Self {
+        Initializer {
+            reference: None,
+            reference_index: 0,
+            reference_timestamp: 0.0,
+            reference_gray: Vec::with_capacity(width * height),
+            reference_rgb: Vec::with_capacity(width * height * 3),
+            reference_has_color: false,
+            grid: FeatureGrid::new((width / 10).max(1), (height / 10).max(1), (0.0, 0.0, width as f32, height as f32), max_features),
+            matches: Vec::with_capacity(max_features),
+            config: TwoViewConfig::default(),
+            min_matches: 100,
+        }
+    }
+
+    pub fn reset(&mut self) {
+        self.reference = None;
+    }
+
+    fn set_reference(&mut self, f: &TrackedFrame, gray: &[u8], rgb: Option<&[u8]>) {
+        self.reference = Some(f.features.clone());
+        self.reference_index = f.index;
+        self.reference_timestamp = f.timestamp;
+        self.reference_gray.clear();
+        self.reference_gray.extend_from_slice(gray);
+        self.reference_rgb.clear();
+        if let Some(c) = rgb {
+            self.reference_rgb.extend_from_slice(c);
+        }
+        self.reference_has_color = rgb.is_some();
+        if let Some(r) = &self.reference {
+            self.grid.assign(&r.keypoints);
+        }
+    }
+
+    /// Tries to initialise from the reference to `f`. On `Ready`, returns the motion and the
+    /// matches (reference keypoint -> current keypoint) through `out`.
+    pub fn attempt(&mut self, f: &TrackedFrame, gray: &[u8], rgb: Option<&[u8]>, k: &Matrix3<f64>, out: &mut Option<(TwoViewMotion, Vec<(u32, u32)>)>) -> InitAttempt {
+        *out = None;
+        let Some(r) = &self.reference else {
+            if f.features.len() > self.min_matches {
+                self.set_reference(f, gray, rgb);
+            }
+            return InitAttempt::NewReference;
+        };
+        let n = search_for_initialization(&r.keypoints, &r.descriptors, &f.features.keypoints, &f.features.descriptors, &f.grid, 100.0, 0.9, true, &mut self.matches);
+        if n < self.min_matches {
+            // Too far from the reference: start over from this frame (ORB-SLAM's policy).
+            if f.features.len() > self.min_matches {
+                self.set_reference(f, gray, rgb);
+            } else {
+                self.reset();
+            }
+            return InitAttempt::TooFewMatches(n);
+        }
+        let pairs: Vec<(u32, u32)> = self.matches.iter().enumerate().filter_map(|(i, m)| m.map(|j| (i as u32, j))).collect();
+        let x1: Vec<Vector2<f64>> = pairs.iter().map(|&(i, _)| Vector2::new(r.keypoints[i as usize].ux as f64, r.keypoints[i as usize].uy as f64)).collect();
+        let x2: Vec<Vector2<f64>> = pairs.iter().map(|&(_, j)| Vector2::new(f.features.keypoints[j as usize].ux as f64, f.features.keypoints[j as usize].uy as f64)).collect();
+        match initialize(&x1, &x2, k, &self.config) {
+            Ok(mut m) => {
+                refine_two_view(&mut m, &x1, &x2, k, self.config.sigma);
+                *out = Some((m, pairs));
+                InitAttempt::Ready
+            }
+            Err(e) => InitAttempt::Failed(e),
+        }
+    }
+}

@@ -1,0 +1,283 @@
+//! Tracking (ORB-SLAM, section "Tracking"): constant-velocity prediction with search by
+//! projection of the last frame's points (window widened once), reference-keyframe fallback,
+//! motion-only BA, local-map tracking (frustum, scale and viewing-angle tests), and the keyframe
+//! decision. The state (NotInitialised, Ok, Lost) is exposed; losing track is a state, not an
+//! error.
+
+pub mod frame;
+pub mod initializer;
+mod local_map;
+
+use nalgebra::{Vector2, Vector3};
+
+pub use frame::TrackedFrame;
+pub use initializer::{InitAttempt, Initializer};
+
+use crate::camera_model::PinholeRadtan;
+use crate::geometry::{CameraFromWorld, Se3};
+use crate::map::{KeyFrameId, Map};
+use crate::matching::search::{search_by_projection, ProjectedPoint};
+use crate::matching::{hamming, RotationHistogram, TH_LOW};
+use crate::optimize::MotionOnlyBa;
+
+/// The tracking state reported for every frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrackingState {
+    NotInitialised,
+    Ok,
+    Lost,
+}
+
+/// Published tracking parameters (ORB-SLAM's values).
+#[derive(Clone, Debug)]
+pub struct TrackingConfig {
+    /// Search radius (pixels at level 0) of the motion-model projection; doubled on failure.
+    pub motion_search_radius: f32,
+    /// Matches needed after the motion-model search before optimising.
+    pub min_motion_matches: usize,
+    /// Inliers for tracking to succeed.
+    pub min_inliers: usize,
+    /// New keyframe when tracked points fall below this share of the reference's.
+    pub keyframe_ratio: f64,
+    /// Frames between keyframes at most (fps) and at least.
+    pub max_frames_between_keyframes: u64,
+    pub min_frames_between_keyframes: u64,
+    /// Local keyframes considered at most.
+    pub max_local_keyframes: usize,
+    /// Viewing angle limit for local-map points: cos(60 deg).
+    pub min_view_cos: f64,
+}
+
+impl Default for TrackingConfig {
+    fn default() -> Self {
+        TrackingConfig {
+            motion_search_radius: 15.0,
+            min_motion_matches: 20,
+            min_inliers: 30,
+            keyframe_ratio: 0.9,
+            max_frames_between_keyframes: 30,
+            min_frames_between_keyframes: 0,
+            max_local_keyframes: 80,
+            min_view_cos: 0.5,
+        }
+    }
+}
+
+/// Tracks frames against the map.
+pub struct Tracker {
+    pub config: TrackingConfig,
+    pub state: TrackingState,
+    pub camera: PinholeRadtan,
+    pub motion_ba: MotionOnlyBa,
+    pub scales: Vec<f64>,
+    pub inv_sigma2: Vec<f64>,
+    /// Last tracked frame's pose and matched points (the motion model's source).
+    pub last: TrackedFrame,
+    pub velocity: Option<Se3>,
+    pub reference_kf: Option<KeyFrameId>,
+    pub last_keyframe_frame: u64,
+    pub lost_episodes: usize,
+    projected: Vec<ProjectedPoint>,
+    proj_ids: Vec<crate::map::MapPointId>,
+    /// Per projected point: its keypoint index in the last frame (rotation check).
+    proj_kp: Vec<usize>,
+    scratch: Vec<u32>,
+    pts: Vec<Vector3<f64>>,
+    obs: Vec<Vector2<f64>>,
+    inv: Vec<f64>,
+    out: Vec<bool>,
+    idx: Vec<usize>,
+    local: local_map::LocalMap,
+}
+
+impl Tracker {
+    pub fn new(camera: PinholeRadtan, scales: Vec<f64>, max_features: usize) -> Self {
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let inv_sigma2 = scales.iter().map(|s| 1.0 / (s * s)).collect();
+        Tracker {
+            config: TrackingConfig::default(),
+            state: TrackingState::NotInitialised,
+            motion_ba: MotionOnlyBa::new(camera.fx, camera.fy, camera.cx, camera.cy),
+            camera,
+            scales,
+            inv_sigma2,
+            last: TrackedFrame::new(max_features, w, h),
+            velocity: None,
+            reference_kf: None,
+            last_keyframe_frame: 0,
+            lost_episodes: 0,
+            projected: Vec::with_capacity(max_features * 8),
+            proj_ids: Vec::with_capacity(max_features * 8),
+            proj_kp: Vec::with_capacity(max_features),
+            scratch: Vec::with_capacity(256),
+            pts: Vec::with_capacity(max_features),
+            obs: Vec::with_capacity(max_features),
+            inv: Vec::with_capacity(max_features),
+            out: Vec::with_capacity(max_features),
+            idx: Vec::with_capacity(max_features),
+            local: local_map::LocalMap::with_capacity(max_features * 8),
+        }
+    }
+
+    /// Motion-only BA of `f` over its matched points; outliers are unmatched. Returns inliers.
+    pub(crate) fn optimize_pose(&mut self, map: &Map, f: &mut TrackedFrame) -> usize {
+        self.pts.clear();
+        self.obs.clear();
+        self.inv.clear();
+        self.out.clear();
+        self.idx.clear();
+        for (i, p) in f.points.iter().enumerate() {
+            let Some(p) = p.and_then(|p| map.point(p)) else { continue };
+            let k = &f.features.keypoints[i];
+            self.pts.push(p.position);
+            self.obs.push(Vector2::new(k.ux as f64, k.uy as f64));
+            self.inv.push(self.inv_sigma2[k.octave as usize]);
+            self.out.push(false);
+            self.idx.push(i);
+        }
+        if self.pts.len() < 4 {
+            return 0;
+        }
+        let n = self.motion_ba.optimize(&mut f.t_cw, &self.pts, &self.obs, &self.inv, &mut self.out);
+        for (k, &i) in self.idx.iter().enumerate() {
+            f.outlier[i] = self.out[k];
+            if self.out[k] {
+                f.points[i] = None;
+            }
+        }
+        n
+    }
+
+    /// Projects the last frame's points with the predicted pose and matches them.
+    fn track_motion_model(&mut self, map: &Map, f: &mut TrackedFrame) -> usize {
+        let pred = match self.velocity {
+            Some(v) => v * self.last.t_cw.0,
+            None => self.last.t_cw.0,
+        };
+        f.t_cw = CameraFromWorld(pred);
+        for radius in [self.config.motion_search_radius, 2.0 * self.config.motion_search_radius] {
+            f.points.iter_mut().for_each(|p| *p = None);
+            self.projected.clear();
+            self.proj_ids.clear();
+            self.proj_kp.clear();
+            for (i, mp) in self.last.inlier_points() {
+                let Some(p) = map.point(mp) else { continue };
+                let pc = f.t_cw.transform(&p.position);
+                let Some(uv) = self.camera.project(&pc) else { continue };
+                if !self.camera.in_image(uv.x, uv.y, 0.0) {
+                    continue;
+                }
+                self.projected.push(ProjectedPoint { id: self.proj_ids.len() as u32, uv: uv.cast(), level: self.last.features.keypoints[i].octave, descriptor: p.descriptor, radius_factor: 1.0 });
+                self.proj_ids.push(mp);
+                self.proj_kp.push(i);
+            }
+            let mut m: Vec<Option<u32>> = vec![None; f.features.len()];
+            search_by_projection(&self.projected, &f.features.keypoints, &f.features.descriptors, &f.grid, &self.scales, radius, 0.9, &mut m, &mut self.scratch);
+            rotation_filter(&self.proj_kp, &self.last, &f.features.keypoints, &mut m);
+            let mut n = 0;
+            for (j, mm) in m.iter().enumerate() {
+                if let Some(id) = mm {
+                    f.points[j] = Some(self.proj_ids[*id as usize]);
+                    n += 1;
+                }
+            }
+            if n >= self.config.min_motion_matches {
+                break;
+            }
+        }
+        self.optimize_pose(map, f)
+    }
+
+    /// Fallback: match all features of the reference keyframe by descriptor (ratio 0.7 and
+    /// rotation consistency), optimise from the last pose.
+    fn track_reference_keyframe(&mut self, map: &Map, f: &mut TrackedFrame) -> usize {
+        let Some(kf) = self.reference_kf.and_then(|r| map.keyframe(r)) else { return 0 };
+        f.t_cw = self.last.t_cw;
+        f.points.iter_mut().for_each(|p| *p = None);
+        let mut best_for: Vec<(u32, usize)> = vec![(u32::MAX, usize::MAX); f.features.len()];
+        let mut rot = RotationHistogram::default();
+        for (i, mp) in kf.observed() {
+            let d1 = &kf.descriptors[i];
+            let (mut b, mut s, mut bj) = (u32::MAX, u32::MAX, usize::MAX);
+            for (j, d2) in f.features.descriptors.iter().enumerate() {
+                let d = hamming(d1, d2);
+                if d < b {
+                    s = b;
+                    b = d;
+                    bj = j;
+                } else if d < s {
+                    s = d;
+                }
+            }
+            if b <= TH_LOW && (b as f32) < 0.7 * s as f32 && b < best_for[bj].0 {
+                best_for[bj] = (b, i);
+                f.points[bj] = Some(mp);
+            }
+        }
+        for (j, &(_, i)) in best_for.iter().enumerate() {
+            if i != usize::MAX && f.points[j].is_some() {
+                rot.add(kf.keypoints[i].angle, f.features.keypoints[j].angle, j as u32);
+            }
+        }
+        rot.for_each_rejected(|j| f.points[j as usize] = None);
+        if f.points.iter().filter(|p| p.is_some()).count() < 15 {
+            return 0;
+        }
+        self.optimize_pose(map, f)
+    }
+
+    /// Tracks `f` (features extracted, matches reset). Updates the motion model and state.
+    pub fn track(&mut self, map: &mut Map, f: &mut TrackedFrame) -> TrackingState {
+        let mut n = self.track_motion_model(map, f);
+        if n < 10 {
+            f.reset_matches();
+            n = self.track_reference_keyframe(map, f);
+        }
+        if n >= 10 {
+            let mut local = std::mem::take(&mut self.local);
+            n = local.track(self, map, f);
+            self.local = local;
+        }
+        let ok = n >= self.config.min_inliers;
+        if ok {
+            self.velocity = Some(f.t_cw.0 * self.last.t_cw.0.inverse());
+            self.state = TrackingState::Ok;
+        } else {
+            if self.state == TrackingState::Ok {
+                self.lost_episodes += 1;
+            }
+            self.state = TrackingState::Lost;
+            self.velocity = None;
+        }
+        self.state
+    }
+
+    /// ORB-SLAM's keyframe rule for a single-thread mapper (always idle): enough frames since
+    /// the last keyframe, and the frame tracks fewer than 90% of the reference's well-observed
+    /// points but more than 15.
+    pub fn need_keyframe(&self, map: &Map, f: &TrackedFrame) -> bool {
+        if self.state != TrackingState::Ok {
+            return false;
+        }
+        let Some(r) = self.reference_kf.and_then(|r| map.keyframe(r)) else { return true };
+        let min_obs = if map.n_keyframes() <= 2 { 2 } else { 3 };
+        let ref_tracked = r.observed().filter(|&(_, p)| map.point(p).is_some_and(|p| p.observations.len() >= min_obs)).count();
+        let tracked = f.n_inliers();
+        let since = f.index.saturating_sub(self.last_keyframe_frame);
+        let c1 = since >= self.config.max_frames_between_keyframes || since >= self.config.min_frames_between_keyframes;
+        let c2 = (tracked as f64) < self.config.keyframe_ratio * ref_tracked as f64 && tracked > 15;
+        c1 && c2
+    }
+}
+
+/// Rotation-consistency check on projection matches against the last frame's keypoints
+/// (`proj_kp[id]` is the last-frame keypoint of projected point `id`).
+fn rotation_filter(proj_kp: &[usize], last: &TrackedFrame, kps: &[crate::features::KeyPoint], m: &mut [Option<u32>]) {
+    let mut rot = RotationHistogram::default();
+    for (j, mm) in m.iter().enumerate() {
+        if let Some(&li) = mm.and_then(|id| proj_kp.get(id as usize)) {
+            rot.add(last.features.keypoints[li].angle, kps[j].angle, j as u32);
+        }
+    }
+    rot.for_each_rejected(|j| m[j as usize] = None);
+}
