@@ -11,6 +11,7 @@ pub mod features;
 pub mod geometry;
 pub mod image;
 pub mod io;
+pub mod local_mapping;
 pub mod map;
 pub mod matching;
 pub mod optimize;

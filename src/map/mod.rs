@@ -472,6 +472,24 @@ impl Map {
         true
     }
 
+    /// Removes every keyframe and point (buffers return to the pools): a fresh map.
+    pub fn reset(&mut self) {
+        let kfs: Vec<KeyFrameId> = self.keyframes.handles().collect();
+        for k in kfs {
+            if let Some(mut kf) = self.keyframes.remove(k) {
+                kf.clear();
+                self.kf_pool.push(kf);
+            }
+        }
+        let pts: Vec<MapPointId> = self.points.handles().collect();
+        for p in pts {
+            if let Some(mut mp) = self.points.remove(p) {
+                mp.clear();
+                self.mp_pool.push(mp);
+            }
+        }
+    }
+
     /// Essential-graph edges (each once): spanning tree, covisibility >= `essential_min_weight`,
     /// and loop edges.
     pub fn essential_edges(&self) -> Vec<(KeyFrameId, KeyFrameId)> {

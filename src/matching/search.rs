@@ -9,8 +9,10 @@ use super::{hamming, FeatureGrid, RotationHistogram, TH_HIGH, TH_LOW};
 use crate::features::{Descriptor, KeyPoint};
 
 /// Matches keypoints of a reference frame to a new frame within a window around each reference
-/// keypoint (finest level only, as monocular initialisation). Returns, per reference keypoint,
-/// the matched index in the new frame.
+/// keypoint, at the same pyramid level (ORB-SLAM uses only the finest level and doubles the
+/// feature count during initialisation instead; matching every level within its octave gives the
+/// same density without a second extractor). Returns, per reference keypoint, the matched index
+/// in the new frame.
 #[allow(clippy::too_many_arguments)]
 pub fn search_for_initialization(
     ref_kps: &[KeyPoint],
@@ -29,10 +31,9 @@ pub fn search_for_initialization(
     let mut cand = Vec::new();
     let mut rot = RotationHistogram::default();
     for (i, k1) in ref_kps.iter().enumerate() {
-        if k1.octave > 0 {
-            continue;
-        }
-        cur_grid.in_area(cur_kps, k1.ux, k1.uy, window, 0, 0, &mut cand);
+        cur_grid.in_area(
+            cur_kps, k1.ux, k1.uy, window, k1.octave, k1.octave, &mut cand,
+        );
         let (mut best, mut second, mut best_j) = (u32::MAX, u32::MAX, u32::MAX);
         for &j in &cand {
             let d = hamming(&ref_desc[i], &cur_desc[j as usize]);
@@ -103,7 +104,8 @@ pub fn search_by_projection(
         let r = radius * scales[p.level as usize] as f32 * p.radius_factor;
         let (lo, hi) = (p.level.saturating_sub(1), (p.level + 1).min(top));
         grid.in_area(kps, p.uv.x, p.uv.y, r, lo, hi, scratch);
-        let (mut best, mut second, mut best_j, mut best_level, mut second_level) = (u32::MAX, u32::MAX, usize::MAX, 0u8, 0u8);
+        let (mut best, mut second, mut best_j, mut best_level, mut second_level) =
+            (u32::MAX, u32::MAX, usize::MAX, 0u8, 0u8);
         for &j in scratch.iter() {
             let j = j as usize;
             if matches[j].is_some() {

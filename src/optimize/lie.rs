@@ -8,9 +8,10 @@ use crate::geometry::{Se3, Sim3};
 #[inline]
 pub fn se3_retract(t: &Se3, d: &[f64; 6]) -> Se3 {
     let dq = UnitQuaternion::from_scaled_axis(Vector3::new(d[0], d[1], d[2]));
+    // Renormalised: products of unit quaternions drift off the unit sphere over many steps.
     Se3::from_parts(
         nalgebra::Translation3::from(dq * t.translation.vector + Vector3::new(d[3], d[4], d[5])),
-        dq * t.rotation,
+        UnitQuaternion::new_normalize((dq * t.rotation).into_inner()),
     )
 }
 
@@ -21,7 +22,7 @@ pub fn sim3_retract(s: &Sim3, d: &[f64; 7]) -> Sim3 {
     let ds = d[6].exp();
     Sim3 {
         scale: ds * s.scale,
-        rotation: dq * s.rotation,
+        rotation: UnitQuaternion::new_normalize((dq * s.rotation).into_inner()),
         translation: ds * (dq * s.translation) + Vector3::new(d[3], d[4], d[5]),
     }
 }

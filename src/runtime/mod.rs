@@ -1,7 +1,9 @@
 //! Runtime: stage timing, the run report, and (with the SLAM core) threads and deadlines.
 
 mod report;
+mod system;
 mod timing;
 
 pub use report::{Report, TimingReport};
+pub use system::{FrameResult, System, SystemStats};
 pub use timing::{Percentiles, StageTimer};

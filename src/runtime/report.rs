@@ -37,6 +37,8 @@ pub struct Report {
     /// Frames lost to real-time pacing because tracking was behind.
     pub dropped_frames: u64,
     pub peak_rss_mb: f64,
+    /// Keyframe ATE RMSE after Sim3 alignment, when ground truth is available (source units).
+    pub keyframe_ate_rmse_m: Option<f64>,
     pub deadline_ms: f64,
     pub wall_time_s: f64,
     /// Why the run ended early, if it did (error or interruption); outputs are still written.

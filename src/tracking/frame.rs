@@ -24,7 +24,12 @@ impl TrackedFrame {
             index: 0,
             timestamp: 0.0,
             features: Features::with_capacity(max_features),
-            grid: FeatureGrid::new((width / 10).max(1), (height / 10).max(1), (0.0, 0.0, width as f32, height as f32), max_features),
+            grid: FeatureGrid::new(
+                (width / 10).max(1),
+                (height / 10).max(1),
+                (0.0, 0.0, width as f32, height as f32),
+                max_features,
+            ),
             t_cw: CameraFromWorld::identity(),
             points: Vec::with_capacity(max_features),
             outlier: Vec::with_capacity(max_features),
@@ -40,9 +45,31 @@ impl TrackedFrame {
         self.grid.assign(&self.features.keypoints);
     }
 
+    /// Copies `other` into this frame's buffers (no allocation once capacities suffice).
+    pub fn copy_from(&mut self, other: &TrackedFrame) {
+        self.index = other.index;
+        self.timestamp = other.timestamp;
+        self.t_cw = other.t_cw;
+        self.features.keypoints.clear();
+        self.features
+            .keypoints
+            .extend_from_slice(&other.features.keypoints);
+        self.features.descriptors.clear();
+        self.features
+            .descriptors
+            .extend_from_slice(&other.features.descriptors);
+        self.points.clear();
+        self.points.extend_from_slice(&other.points);
+        self.outlier.clear();
+        self.outlier.extend_from_slice(&other.outlier);
+    }
+
     /// Matched map points that survived the last optimisation.
     pub fn inlier_points(&self) -> impl Iterator<Item = (usize, MapPointId)> + '_ {
-        self.points.iter().enumerate().filter_map(|(i, p)| p.filter(|_| !self.outlier[i]).map(|p| (i, p)))
+        self.points
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| p.filter(|_| !self.outlier[i]).map(|p| (i, p)))
     }
 
     pub fn n_inliers(&self) -> usize {

@@ -43,7 +43,12 @@ impl Initializer {
             reference_gray: Vec::with_capacity(width * height),
             reference_rgb: Vec::with_capacity(width * height * 3),
             reference_has_color: false,
-            grid: FeatureGrid::new((width / 10).max(1), (height / 10).max(1), (0.0, 0.0, width as f32, height as f32), max_features),
+            grid: FeatureGrid::new(
+                (width / 10).max(1),
+                (height / 10).max(1),
+                (0.0, 0.0, width as f32, height as f32),
+                max_features,
+            ),
             matches: Vec::with_capacity(max_features),
             config: TwoViewConfig::default(),
             min_matches: 100,
@@ -72,7 +77,14 @@ impl Initializer {
 
     /// Tries to initialise from the reference to `f`. On `Ready`, returns the motion and the
     /// matches (reference keypoint -> current keypoint) through `out`.
-    pub fn attempt(&mut self, f: &TrackedFrame, gray: &[u8], rgb: Option<&[u8]>, k: &Matrix3<f64>, out: &mut Option<(TwoViewMotion, Vec<(u32, u32)>)>) -> InitAttempt {
+    pub fn attempt(
+        &mut self,
+        f: &TrackedFrame,
+        gray: &[u8],
+        rgb: Option<&[u8]>,
+        k: &Matrix3<f64>,
+        out: &mut Option<(TwoViewMotion, Vec<(u32, u32)>)>,
+    ) -> InitAttempt {
         *out = None;
         let Some(r) = &self.reference else {
             if f.features.len() > self.min_matches {
@@ -80,7 +92,17 @@ impl Initializer {
             }
             return InitAttempt::NewReference;
         };
-        let n = search_for_initialization(&r.keypoints, &r.descriptors, &f.features.keypoints, &f.features.descriptors, &f.grid, 100.0, 0.9, true, &mut self.matches);
+        let n = search_for_initialization(
+            &r.keypoints,
+            &r.descriptors,
+            &f.features.keypoints,
+            &f.features.descriptors,
+            &f.grid,
+            100.0,
+            0.9,
+            true,
+            &mut self.matches,
+        );
         if n < self.min_matches {
             // Too far from the reference: start over from this frame (ORB-SLAM's policy).
             if f.features.len() > self.min_matches {
@@ -90,9 +112,30 @@ impl Initializer {
             }
             return InitAttempt::TooFewMatches(n);
         }
-        let pairs: Vec<(u32, u32)> = self.matches.iter().enumerate().filter_map(|(i, m)| m.map(|j| (i as u32, j))).collect();
-        let x1: Vec<Vector2<f64>> = pairs.iter().map(|&(i, _)| Vector2::new(r.keypoints[i as usize].ux as f64, r.keypoints[i as usize].uy as f64)).collect();
-        let x2: Vec<Vector2<f64>> = pairs.iter().map(|&(_, j)| Vector2::new(f.features.keypoints[j as usize].ux as f64, f.features.keypoints[j as usize].uy as f64)).collect();
+        let pairs: Vec<(u32, u32)> = self
+            .matches
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| m.map(|j| (i as u32, j)))
+            .collect();
+        let x1: Vec<Vector2<f64>> = pairs
+            .iter()
+            .map(|&(i, _)| {
+                Vector2::new(
+                    r.keypoints[i as usize].ux as f64,
+                    r.keypoints[i as usize].uy as f64,
+                )
+            })
+            .collect();
+        let x2: Vec<Vector2<f64>> = pairs
+            .iter()
+            .map(|&(_, j)| {
+                Vector2::new(
+                    f.features.keypoints[j as usize].ux as f64,
+                    f.features.keypoints[j as usize].uy as f64,
+                )
+            })
+            .collect();
         match initialize(&x1, &x2, k, &self.config) {
             Ok(mut m) => {
                 refine_two_view(&mut m, &x1, &x2, k, self.config.sigma);

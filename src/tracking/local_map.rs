@@ -46,7 +46,7 @@ impl LocalMap {
                 }
             }
         }
-        self.counts.sort_by(|a, b| b.1.cmp(&a.1));
+        self.counts.sort_by_key(|c| std::cmp::Reverse(c.1));
         if let Some(&(best, _)) = self.counts.first() {
             t.reference_kf = Some(best);
         }
@@ -62,8 +62,13 @@ impl LocalMap {
             if self.keyframes.len() >= t.config.max_local_keyframes {
                 break;
             }
-            let Some(k) = map.keyframe(self.keyframes[i]) else { continue };
-            let more = k.best_covisibles(10).chain(k.children.iter().copied()).chain(k.parent);
+            let Some(k) = map.keyframe(self.keyframes[i]) else {
+                continue;
+            };
+            let more = k
+                .best_covisibles(10)
+                .chain(k.children.iter().copied())
+                .chain(k.parent);
             for n in more {
                 if map.keyframe(n).is_some() && self.kf_stamp[n.index()] != stamp {
                     self.kf_stamp[n.index()] = stamp;
@@ -100,7 +105,9 @@ impl LocalMap {
         for &mp in &self.points {
             let Some(p) = map.point_mut(mp) else { continue };
             let pc = f.t_cw.transform(&p.position);
-            let Some(uv) = t.camera.project(&pc) else { continue };
+            let Some(uv) = t.camera.project(&pc) else {
+                continue;
+            };
             if !t.camera.in_image(uv.x, uv.y, 0.0) {
                 continue;
             }
@@ -116,13 +123,30 @@ impl LocalMap {
             p.visible += 1;
             let level = p.predict_level(dist, sf, nl) as u8;
             let radius_factor = if view_cos > 0.998 { 2.5 } else { 4.0 };
-            self.projected.push(ProjectedPoint { id: self.ids.len() as u32, uv: uv.cast(), level, descriptor: p.descriptor, radius_factor });
+            self.projected.push(ProjectedPoint {
+                id: self.ids.len() as u32,
+                uv: uv.cast(),
+                level,
+                descriptor: p.descriptor,
+                radius_factor,
+            });
             self.ids.push(mp);
         }
         // Matches only into free keypoints.
         self.matches.clear();
-        self.matches.extend(f.points.iter().map(|p| p.map(|_| u32::MAX)));
-        search_by_projection(&self.projected, &f.features.keypoints, &f.features.descriptors, &f.grid, &t.scales, 1.0, 0.8, &mut self.matches, &mut self.scratch);
+        self.matches
+            .extend(f.points.iter().map(|p| p.map(|_| u32::MAX)));
+        search_by_projection(
+            &self.projected,
+            &f.features.keypoints,
+            &f.features.descriptors,
+            &f.grid,
+            &t.scales,
+            1.0,
+            0.8,
+            &mut self.matches,
+            &mut self.scratch,
+        );
         for (j, m) in self.matches.iter().enumerate() {
             if let Some(id) = m {
                 if *id != u32::MAX {

@@ -127,7 +127,9 @@ impl Tracker {
         self.out.clear();
         self.idx.clear();
         for (i, p) in f.points.iter().enumerate() {
-            let Some(p) = p.and_then(|p| map.point(p)) else { continue };
+            let Some(p) = p.and_then(|p| map.point(p)) else {
+                continue;
+            };
             let k = &f.features.keypoints[i];
             self.pts.push(p.position);
             self.obs.push(Vector2::new(k.ux as f64, k.uy as f64));
@@ -138,7 +140,9 @@ impl Tracker {
         if self.pts.len() < 4 {
             return 0;
         }
-        let n = self.motion_ba.optimize(&mut f.t_cw, &self.pts, &self.obs, &self.inv, &mut self.out);
+        let n =
+            self.motion_ba
+                .optimize(&mut f.t_cw, &self.pts, &self.obs, &self.inv, &mut self.out);
         for (k, &i) in self.idx.iter().enumerate() {
             f.outlier[i] = self.out[k];
             if self.out[k] {
@@ -155,7 +159,10 @@ impl Tracker {
             None => self.last.t_cw.0,
         };
         f.t_cw = CameraFromWorld(pred);
-        for radius in [self.config.motion_search_radius, 2.0 * self.config.motion_search_radius] {
+        for radius in [
+            self.config.motion_search_radius,
+            2.0 * self.config.motion_search_radius,
+        ] {
             f.points.iter_mut().for_each(|p| *p = None);
             self.projected.clear();
             self.proj_ids.clear();
@@ -163,16 +170,34 @@ impl Tracker {
             for (i, mp) in self.last.inlier_points() {
                 let Some(p) = map.point(mp) else { continue };
                 let pc = f.t_cw.transform(&p.position);
-                let Some(uv) = self.camera.project(&pc) else { continue };
+                let Some(uv) = self.camera.project(&pc) else {
+                    continue;
+                };
                 if !self.camera.in_image(uv.x, uv.y, 0.0) {
                     continue;
                 }
-                self.projected.push(ProjectedPoint { id: self.proj_ids.len() as u32, uv: uv.cast(), level: self.last.features.keypoints[i].octave, descriptor: p.descriptor, radius_factor: 1.0 });
+                self.projected.push(ProjectedPoint {
+                    id: self.proj_ids.len() as u32,
+                    uv: uv.cast(),
+                    level: self.last.features.keypoints[i].octave,
+                    descriptor: p.descriptor,
+                    radius_factor: 1.0,
+                });
                 self.proj_ids.push(mp);
                 self.proj_kp.push(i);
             }
             let mut m: Vec<Option<u32>> = vec![None; f.features.len()];
-            search_by_projection(&self.projected, &f.features.keypoints, &f.features.descriptors, &f.grid, &self.scales, radius, 0.9, &mut m, &mut self.scratch);
+            search_by_projection(
+                &self.projected,
+                &f.features.keypoints,
+                &f.features.descriptors,
+                &f.grid,
+                &self.scales,
+                radius,
+                0.9,
+                &mut m,
+                &mut self.scratch,
+            );
             rotation_filter(&self.proj_kp, &self.last, &f.features.keypoints, &mut m);
             let mut n = 0;
             for (j, mm) in m.iter().enumerate() {
@@ -191,7 +216,9 @@ impl Tracker {
     /// Fallback: match all features of the reference keyframe by descriptor (ratio 0.7 and
     /// rotation consistency), optimise from the last pose.
     fn track_reference_keyframe(&mut self, map: &Map, f: &mut TrackedFrame) -> usize {
-        let Some(kf) = self.reference_kf.and_then(|r| map.keyframe(r)) else { return 0 };
+        let Some(kf) = self.reference_kf.and_then(|r| map.keyframe(r)) else {
+            return 0;
+        };
         f.t_cw = self.last.t_cw;
         f.points.iter_mut().for_each(|p| *p = None);
         let mut best_for: Vec<(u32, usize)> = vec![(u32::MAX, usize::MAX); f.features.len()];
@@ -216,7 +243,11 @@ impl Tracker {
         }
         for (j, &(_, i)) in best_for.iter().enumerate() {
             if i != usize::MAX && f.points[j].is_some() {
-                rot.add(kf.keypoints[i].angle, f.features.keypoints[j].angle, j as u32);
+                rot.add(
+                    kf.keypoints[i].angle,
+                    f.features.keypoints[j].angle,
+                    j as u32,
+                );
             }
         }
         rot.for_each_rejected(|j| f.points[j as usize] = None);
@@ -259,12 +290,25 @@ impl Tracker {
         if self.state != TrackingState::Ok {
             return false;
         }
-        let Some(r) = self.reference_kf.and_then(|r| map.keyframe(r)) else { return true };
-        let min_obs = if map.n_keyframes() <= 2 { 2 } else { 3 };
-        let ref_tracked = r.observed().filter(|&(_, p)| map.point(p).is_some_and(|p| p.observations.len() >= min_obs)).count();
+        let Some(r) = self.reference_kf.and_then(|r| map.keyframe(r)) else {
+            return true;
+        };
+        // ORB-SLAM counts points seen by >= 3 keyframes once the map has more than 2; a young
+        // map's points mostly have 2 observations, which starves keyframe insertion and lets the
+        // baseline grow past what epipolar matching can bridge. Use 3 only once the map is
+        // established.
+        let min_obs = if map.n_keyframes() <= 5 { 2 } else { 3 };
+        let ref_tracked = r
+            .observed()
+            .filter(|&(_, p)| {
+                map.point(p)
+                    .is_some_and(|p| p.observations.len() >= min_obs)
+            })
+            .count();
         let tracked = f.n_inliers();
         let since = f.index.saturating_sub(self.last_keyframe_frame);
-        let c1 = since >= self.config.max_frames_between_keyframes || since >= self.config.min_frames_between_keyframes;
+        let c1 = since >= self.config.max_frames_between_keyframes
+            || since >= self.config.min_frames_between_keyframes;
         let c2 = (tracked as f64) < self.config.keyframe_ratio * ref_tracked as f64 && tracked > 15;
         c1 && c2
     }
@@ -272,7 +316,12 @@ impl Tracker {
 
 /// Rotation-consistency check on projection matches against the last frame's keypoints
 /// (`proj_kp[id]` is the last-frame keypoint of projected point `id`).
-fn rotation_filter(proj_kp: &[usize], last: &TrackedFrame, kps: &[crate::features::KeyPoint], m: &mut [Option<u32>]) {
+fn rotation_filter(
+    proj_kp: &[usize],
+    last: &TrackedFrame,
+    kps: &[crate::features::KeyPoint],
+    m: &mut [Option<u32>],
+) {
     let mut rot = RotationHistogram::default();
     for (j, mm) in m.iter().enumerate() {
         if let Some(&li) = mm.and_then(|id| proj_kp.get(id as usize)) {

@@ -1,0 +1,381 @@
+//! Local mapping (ORB-SLAM, section "Local Mapping"), run per new keyframe: point geometry
+//! updates, recent map-point culling, triangulation of new points with the best covisible
+//! keyframes (epipolar search, parallax, positive depth, reprojection and scale checks), local
+//! BA (the keyframe and its covisibles; keyframes that only see their points stay fixed), and
+//! keyframe culling (90% of points seen by >= 3 others at the same or finer scale).
+
+use nalgebra::{Matrix3, Vector2};
+
+use crate::camera_model::PinholeRadtan;
+use crate::geometry::epipolar::fundamental_from_poses;
+use crate::geometry::triangulate::{triangulate_checked, TriangulationChecks};
+use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::matching::search::search_for_triangulation;
+use crate::optimize::{BaObservation, BaOptions, BaProblem, BundleAdjuster};
+
+/// Published local-mapping parameters.
+#[derive(Clone, Debug)]
+pub struct LocalMappingConfig {
+    /// Covisible keyframes used for triangulation (ORB-SLAM monocular: 20).
+    pub triangulation_neighbours: usize,
+    /// Culling: minimum found/visible ratio, and observations needed after 2 keyframes.
+    pub min_found_ratio: f64,
+    pub min_observations: usize,
+    /// Keyframe culling: share of redundant points.
+    pub redundancy: f64,
+    pub ba_iterations_robust: usize,
+    pub ba_iterations: usize,
+}
+
+impl Default for LocalMappingConfig {
+    fn default() -> Self {
+        LocalMappingConfig {
+            triangulation_neighbours: 20,
+            min_found_ratio: 0.25,
+            min_observations: 2,
+            redundancy: 0.9,
+            ba_iterations_robust: 5,
+            ba_iterations: 10,
+        }
+    }
+}
+
+pub struct LocalMapper {
+    pub config: LocalMappingConfig,
+    camera: PinholeRadtan,
+    k: Matrix3<f64>,
+    sigma2: Vec<f64>,
+    recent: Vec<MapPointId>,
+    ba: BundleAdjuster,
+    problem: BaProblem,
+    pairs: Vec<(u32, u32)>,
+    /// Keyframes erased by culling (reported).
+    pub culled_keyframes: usize,
+}
+
+impl LocalMapper {
+    pub fn new(camera: PinholeRadtan, scales: &[f64]) -> Self {
+        LocalMapper {
+            config: LocalMappingConfig::default(),
+            k: camera.k(),
+            camera,
+            sigma2: scales.iter().map(|s| s * s).collect(),
+            recent: Vec::new(),
+            ba: BundleAdjuster::new(),
+            problem: BaProblem::default(),
+            pairs: Vec::new(),
+            culled_keyframes: 0,
+        }
+    }
+
+    /// Processes a keyframe just inserted by tracking (its observations already added).
+    pub fn process(&mut self, map: &mut Map, kf: KeyFrameId) {
+        let pts: Vec<MapPointId> = map
+            .keyframe(kf)
+            .map(|k| k.observed().map(|(_, p)| p).collect())
+            .unwrap_or_default();
+        for p in pts {
+            map.update_point_geometry(p);
+        }
+        map.update_connections(kf);
+        self.cull_points(map, kf);
+        self.triangulate(map, kf);
+        if map.n_keyframes() > 2 {
+            self.local_ba(map, kf);
+        }
+        self.cull_keyframes(map, kf);
+    }
+
+    fn cull_points(&mut self, map: &mut Map, kf: KeyFrameId) {
+        let cur = map.keyframe(kf).map_or(0, |k| k.serial);
+        let cfg = &self.config;
+        let mut keep = Vec::with_capacity(self.recent.len());
+        for &p in &self.recent {
+            let Some(mp) = map.point(p) else { continue };
+            let age = cur.saturating_sub(mp.first_kf_serial);
+            if mp.found_ratio() < cfg.min_found_ratio
+                || (age >= 2 && mp.observations.len() <= cfg.min_observations)
+            {
+                map.erase_point(p);
+            } else if age < 3 {
+                keep.push(p);
+            }
+        }
+        self.recent = keep;
+    }
+
+    fn triangulate(&mut self, map: &mut Map, kf: KeyFrameId) {
+        let Some(k1) = map.keyframe(kf) else { return };
+        let neighbours: Vec<KeyFrameId> = k1
+            .best_covisibles(self.config.triangulation_neighbours)
+            .collect();
+        let t1 = k1.t_cw;
+        let c1 = t1.center();
+        let mut created = Vec::new();
+        for n in neighbours {
+            let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(n)) else {
+                continue;
+            };
+            // Baseline against the neighbour's scene depth (monocular: skip tiny baselines).
+            let baseline = (k2.t_cw.center() - c1).norm();
+            let depths: Vec<f64> = k2
+                .observed()
+                .filter_map(|(_, p)| map.point(p))
+                .map(|p| k2.t_cw.transform(&p.position).z)
+                .collect();
+            if depths.is_empty() {
+                continue;
+            }
+            let mut d = depths.clone();
+            d.sort_by(|a, b| a.total_cmp(b));
+            if baseline / d[d.len() / 2] < 0.01 {
+                continue;
+            }
+            let Some(f21) = fundamental_from_poses(&self.k, &t1, &self.k, &k2.t_cw) else {
+                continue;
+            };
+            let epi = k2.t_cw.transform(&c1);
+            let epipole = (epi.z > 1e-9).then(|| {
+                Vector2::new(
+                    self.camera.fx * epi.x / epi.z + self.camera.cx,
+                    self.camera.fy * epi.y / epi.z + self.camera.cy,
+                )
+            });
+            let free1: Vec<bool> = k1.points.iter().map(|p| p.is_none()).collect();
+            let free2: Vec<bool> = k2.points.iter().map(|p| p.is_none()).collect();
+            search_for_triangulation(
+                &k1.keypoints,
+                &k1.descriptors,
+                &free1,
+                &k2.keypoints,
+                &k2.descriptors,
+                &free2,
+                &f21,
+                epipole,
+                &self.sigma2,
+                true,
+                &mut self.pairs,
+            );
+            let t_21 = k2.t_cw.0 * t1.0.inverse();
+            let mut new_pts = Vec::new();
+            for &(i, j) in &self.pairs {
+                let (a, b) = (&k1.keypoints[i as usize], &k2.keypoints[j as usize]);
+                let checks = TriangulationChecks {
+                    max_cos_parallax: 0.9998,
+                    max_sq_error_1: 5.991 * self.sigma2[a.octave as usize],
+                    max_sq_error_2: 5.991 * self.sigma2[b.octave as usize],
+                    fx: self.camera.fx,
+                    fy: self.camera.fy,
+                    cx: self.camera.cx,
+                    cy: self.camera.cy,
+                };
+                let Ok(p1) = triangulate_checked(
+                    &Vector2::new(a.ux as f64, a.uy as f64),
+                    &Vector2::new(b.ux as f64, b.uy as f64),
+                    &t_21,
+                    &checks,
+                ) else {
+                    continue;
+                };
+                let pw = t1.inverse().transform(&p1);
+                // Scale consistency: distance ratio vs octave ratio within 1.5x.
+                let (d1, d2) = ((pw - c1).norm(), (pw - k2.t_cw.center()).norm());
+                if d1 <= 0.0 || d2 <= 0.0 {
+                    continue;
+                }
+                let ratio_dist = d2 / d1;
+                let ratio_oct =
+                    (self.sigma2[a.octave as usize] / self.sigma2[b.octave as usize]).sqrt();
+                if ratio_dist * 1.5 < ratio_oct || ratio_dist > ratio_oct * 1.5 {
+                    continue;
+                }
+                new_pts.push((i, j, pw));
+            }
+            for (i, j, pw) in new_pts {
+                // A keypoint may have been taken by a previous neighbour in this loop.
+                if map
+                    .keyframe(kf)
+                    .is_some_and(|k| k.points[i as usize].is_some())
+                    || map
+                        .keyframe(n)
+                        .is_some_and(|k| k.points[j as usize].is_some())
+                {
+                    continue;
+                }
+                let Ok(p) = map.insert_point(pw, kf) else {
+                    return;
+                };
+                map.add_observation(p, kf, i as usize);
+                map.add_observation(p, n, j as usize);
+                map.update_point_geometry(p);
+                created.push(p);
+            }
+        }
+        self.recent.extend(created);
+        map.update_connections(kf);
+    }
+
+    fn local_ba(&mut self, map: &mut Map, kf: KeyFrameId) {
+        let Some(k) = map.keyframe(kf) else { return };
+        let mut local: Vec<KeyFrameId> = vec![kf];
+        local.extend(k.covisibles.iter().map(|&(f, _)| f));
+        let mut points: Vec<MapPointId> = Vec::new();
+        let mut seen = std::collections::HashSet::new();
+        for &l in &local {
+            if let Some(lk) = map.keyframe(l) {
+                for (_, p) in lk.observed() {
+                    if seen.insert(p) {
+                        points.push(p);
+                    }
+                }
+            }
+        }
+        // Fixed: keyframes seeing local points but not local themselves; the first keyframe.
+        let mut poses: Vec<KeyFrameId> = local.clone();
+        let mut fixed: Vec<bool> = local
+            .iter()
+            .map(|&l| map.keyframe(l).is_some_and(|k| k.parent.is_none()))
+            .collect();
+        let mut pose_index = std::collections::HashMap::new();
+        for (i, &l) in poses.iter().enumerate() {
+            pose_index.insert(l, i as u32);
+        }
+        let p = &mut self.problem;
+        p.fx = self.camera.fx;
+        p.fy = self.camera.fy;
+        p.cx = self.camera.cx;
+        p.cy = self.camera.cy;
+        p.points.clear();
+        p.observations.clear();
+        p.excluded.clear();
+        let mut obs_src: Vec<(MapPointId, KeyFrameId)> = Vec::new();
+        for (j, &mp) in points.iter().enumerate() {
+            let Some(m) = map.point(mp) else { continue };
+            p.points.push(m.position);
+            for &(okf, i) in &m.observations {
+                let Some(ok) = map.keyframe(okf) else {
+                    continue;
+                };
+                let idx = *pose_index.entry(okf).or_insert_with(|| {
+                    poses.push(okf);
+                    fixed.push(true);
+                    (poses.len() - 1) as u32
+                });
+                let kp = &ok.keypoints[i as usize];
+                p.observations.push(BaObservation {
+                    pose: idx,
+                    point: j as u32,
+                    uv: Vector2::new(kp.ux as f64, kp.uy as f64),
+                    inv_sigma2: 1.0 / self.sigma2[kp.octave as usize],
+                });
+                obs_src.push((mp, okf));
+            }
+        }
+        p.poses = poses
+            .iter()
+            .map(|&l| {
+                map.keyframe(l)
+                    .map(|k| k.t_cw)
+                    .unwrap_or_else(crate::geometry::CameraFromWorld::identity)
+            })
+            .collect();
+        p.pose_fixed = fixed;
+        if p.poses.iter().zip(&p.pose_fixed).all(|(_, &f)| f) {
+            return;
+        }
+        let cfg = &self.config;
+        self.ba.solve(
+            p,
+            &BaOptions {
+                iterations: cfg.ba_iterations_robust,
+                ..BaOptions::default()
+            },
+        );
+        p.classify_outliers(5.991);
+        self.ba.solve(
+            p,
+            &BaOptions {
+                iterations: cfg.ba_iterations,
+                robust_delta2: None,
+                ..BaOptions::default()
+            },
+        );
+        p.excluded.iter_mut().for_each(|e| *e = false);
+        p.classify_outliers(5.991);
+        // Write back.
+        for (i, &l) in poses.iter().enumerate() {
+            if !p.pose_fixed[i] {
+                if let Some(k) = map.keyframe_mut(l) {
+                    k.t_cw = p.poses[i];
+                }
+            }
+        }
+        for (j, &mp) in points.iter().enumerate() {
+            if let Some(m) = map.point_mut(mp) {
+                m.position = p.points[j];
+            }
+        }
+        for (o, &(mp, okf)) in obs_src.iter().enumerate() {
+            if p.excluded[o] {
+                map.erase_observation(mp, okf);
+            }
+        }
+        for &mp in &points {
+            map.update_point_geometry(mp);
+        }
+    }
+
+    fn cull_keyframes(&mut self, map: &mut Map, kf: KeyFrameId) {
+        let Some(k) = map.keyframe(kf) else { return };
+        let candidates: Vec<KeyFrameId> = k.covisibles.iter().map(|&(f, _)| f).collect();
+        for c in candidates {
+            let Some(ck) = map.keyframe(c) else { continue };
+            if ck.parent.is_none() {
+                continue;
+            }
+            let (mut total, mut redundant) = (0usize, 0usize);
+            for (i, mp) in ck.observed() {
+                let Some(p) = map.point(mp) else { continue };
+                total += 1;
+                if p.observations.len() <= 3 {
+                    continue;
+                }
+                let oct = ck.keypoints[i].octave;
+                let others = p
+                    .observations
+                    .iter()
+                    .filter(|&&(f, j)| {
+                        f != c
+                            && map
+                                .keyframe(f)
+                                .is_some_and(|fk| fk.keypoints[j as usize].octave <= oct + 1)
+                    })
+                    .count();
+                if others >= 3 {
+                    redundant += 1;
+                }
+            }
+            if total > 0
+                && redundant as f64 > self.config.redundancy * total as f64
+                && map.erase_keyframe(c)
+            {
+                self.culled_keyframes += 1;
+            }
+        }
+    }
+}
+
+/// Median scene depth of a keyframe's points (for scale normalisation and baselines).
+pub fn median_depth(map: &Map, kf: KeyFrameId) -> Option<f64> {
+    let k = map.keyframe(kf)?;
+    let mut d: Vec<f64> = k
+        .observed()
+        .filter_map(|(_, p)| map.point(p))
+        .map(|p| k.t_cw.transform(&p.position).z)
+        .collect();
+    if d.is_empty() {
+        return None;
+    }
+    d.sort_by(|a, b| a.total_cmp(b));
+    Some(d[d.len() / 2])
+}
