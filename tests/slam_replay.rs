@@ -12,17 +12,40 @@ use sdslam::io::read_tum_trajectory;
 fn built_in_sequence_replays_tracked_accurate_and_deterministic() {
     let d = tempfile::tempdir().unwrap();
     let seq = d.path().join("seq");
-    let (ok, _, err) = sdslam(&["synth", "--out", seq.to_str().unwrap(), "--frames", "300", "--depth-every", "0"]);
+    let (ok, _, err) = sdslam(&[
+        "synth",
+        "--out",
+        seq.to_str().unwrap(),
+        "--frames",
+        "300",
+        "--depth-every",
+        "0",
+    ]);
     assert!(ok, "{err}");
     let mut trajectories = Vec::new();
     for run in 0..2 {
         let out = d.path().join(format!("out{run}"));
-        let (ok, _, err) = sdslam(&["run", seq.to_str().unwrap(), "--out", out.to_str().unwrap(), "--deterministic", "--no-semidense"]);
+        let (ok, _, err) = sdslam(&[
+            "run",
+            seq.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--deterministic",
+            "--no-semidense",
+        ]);
         assert!(ok, "{err}");
-        let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
-        let (frames, tracked) = (report["frames"].as_u64().unwrap(), report["tracked_frames"].as_u64().unwrap());
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
+                .unwrap();
+        let (frames, tracked) = (
+            report["frames"].as_u64().unwrap(),
+            report["tracked_frames"].as_u64().unwrap(),
+        );
         assert_eq!(frames, 300);
-        assert!(tracked * 100 >= frames * 95, "tracked {tracked} of {frames}");
+        assert!(
+            tracked * 100 >= frames * 95,
+            "tracked {tracked} of {frames}"
+        );
         let gt = read_tum_trajectory(&seq.join("groundtruth.txt")).unwrap();
         let est = read_tum_trajectory(&out.join("trajectory.txt")).unwrap();
         let r = ate(&gt, &est, 0.02, true).unwrap();
@@ -34,8 +57,15 @@ fn built_in_sequence_replays_tracked_accurate_and_deterministic() {
             }
         }
         eprintln!("run {run}: tracked {tracked}/{frames}, ATE {:.4} m over extent {extent:.2} m ({:.2}%), {} keyframes", r.rmse_m, 100.0 * r.rmse_m / extent, report["keyframes"]);
-        assert!(r.rmse_m < 0.02 * extent, "ATE {} vs extent {extent}", r.rmse_m);
+        assert!(
+            r.rmse_m < 0.02 * extent,
+            "ATE {} vs extent {extent}",
+            r.rmse_m
+        );
         trajectories.push(std::fs::read_to_string(out.join("trajectory.txt")).unwrap());
     }
-    assert_eq!(trajectories[0], trajectories[1], "deterministic runs differ");
+    assert_eq!(
+        trajectories[0], trajectories[1],
+        "deterministic runs differ"
+    );
 }

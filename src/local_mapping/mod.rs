@@ -49,6 +49,10 @@ pub struct LocalMapper {
     ba: BundleAdjuster,
     problem: BaProblem,
     pairs: Vec<(u32, u32)>,
+    has_ba: bool,
+    ba_poses: Vec<KeyFrameId>,
+    ba_points: Vec<MapPointId>,
+    obs_src: Vec<(MapPointId, KeyFrameId)>,
     /// Keyframes erased by culling (reported).
     pub culled_keyframes: usize,
 }
@@ -64,12 +68,27 @@ impl LocalMapper {
             ba: BundleAdjuster::new(),
             problem: BaProblem::default(),
             pairs: Vec::new(),
+            has_ba: false,
+            ba_poses: Vec::new(),
+            ba_points: Vec::new(),
+            obs_src: Vec::new(),
             culled_keyframes: 0,
         }
     }
 
     /// Processes a keyframe just inserted by tracking (its observations already added).
+    /// Processes a keyframe just inserted by tracking (its observations already added), all
+    /// under the caller's access to the map (deterministic mode).
     pub fn process(&mut self, map: &mut Map, kf: KeyFrameId) {
+        if self.prepare(map, kf) {
+            self.solve();
+        }
+        self.finish(map, kf);
+    }
+
+    /// Phase 1 (map locked): geometry, connections, point culling, triangulation, and the local
+    /// BA problem copied out of the map. Returns whether there is a BA to solve.
+    pub fn prepare(&mut self, map: &mut Map, kf: KeyFrameId) -> bool {
         let pts: Vec<MapPointId> = map
             .keyframe(kf)
             .map(|k| k.observed().map(|(_, p)| p).collect())
@@ -80,8 +99,43 @@ impl LocalMapper {
         map.update_connections(kf);
         self.cull_points(map, kf);
         self.triangulate(map, kf);
-        if map.n_keyframes() > 2 {
-            self.local_ba(map, kf);
+        self.has_ba = map.n_keyframes() > 2 && self.build_local_ba(map, kf);
+        self.has_ba
+    }
+
+    /// Phase 2 (map not locked): local BA on the copied problem.
+    pub fn solve(&mut self) {
+        if !self.has_ba {
+            return;
+        }
+        let p = &mut self.problem;
+        let cfg = &self.config;
+        self.ba.solve(
+            p,
+            &BaOptions {
+                iterations: cfg.ba_iterations_robust,
+                ..BaOptions::default()
+            },
+        );
+        p.classify_outliers(5.991);
+        self.ba.solve(
+            p,
+            &BaOptions {
+                iterations: cfg.ba_iterations,
+                robust_delta2: None,
+                ..BaOptions::default()
+            },
+        );
+        p.excluded.iter_mut().for_each(|e| *e = false);
+        p.classify_outliers(5.991);
+    }
+
+    /// Phase 3 (map locked): write the BA result back (entities erased meanwhile are skipped),
+    /// drop outlier observations, cull redundant keyframes.
+    pub fn finish(&mut self, map: &mut Map, kf: KeyFrameId) {
+        if self.has_ba {
+            self.write_back(map);
+            self.has_ba = false;
         }
         self.cull_keyframes(map, kf);
     }
@@ -215,29 +269,32 @@ impl LocalMapper {
         map.update_connections(kf);
     }
 
-    fn local_ba(&mut self, map: &mut Map, kf: KeyFrameId) {
-        let Some(k) = map.keyframe(kf) else { return };
+    fn build_local_ba(&mut self, map: &Map, kf: KeyFrameId) -> bool {
+        let Some(k) = map.keyframe(kf) else {
+            return false;
+        };
         let mut local: Vec<KeyFrameId> = vec![kf];
         local.extend(k.covisibles.iter().map(|&(f, _)| f));
-        let mut points: Vec<MapPointId> = Vec::new();
+        self.ba_points.clear();
         let mut seen = std::collections::HashSet::new();
         for &l in &local {
             if let Some(lk) = map.keyframe(l) {
                 for (_, p) in lk.observed() {
                     if seen.insert(p) {
-                        points.push(p);
+                        self.ba_points.push(p);
                     }
                 }
             }
         }
         // Fixed: keyframes seeing local points but not local themselves; the first keyframe.
-        let mut poses: Vec<KeyFrameId> = local.clone();
+        self.ba_poses.clear();
+        self.ba_poses.extend_from_slice(&local);
         let mut fixed: Vec<bool> = local
             .iter()
             .map(|&l| map.keyframe(l).is_some_and(|k| k.parent.is_none()))
             .collect();
         let mut pose_index = std::collections::HashMap::new();
-        for (i, &l) in poses.iter().enumerate() {
+        for (i, &l) in self.ba_poses.iter().enumerate() {
             pose_index.insert(l, i as u32);
         }
         let p = &mut self.problem;
@@ -248,14 +305,15 @@ impl LocalMapper {
         p.points.clear();
         p.observations.clear();
         p.excluded.clear();
-        let mut obs_src: Vec<(MapPointId, KeyFrameId)> = Vec::new();
-        for (j, &mp) in points.iter().enumerate() {
+        self.obs_src.clear();
+        for (j, &mp) in self.ba_points.iter().enumerate() {
             let Some(m) = map.point(mp) else { continue };
             p.points.push(m.position);
             for &(okf, i) in &m.observations {
                 let Some(ok) = map.keyframe(okf) else {
                     continue;
                 };
+                let poses = &mut self.ba_poses;
                 let idx = *pose_index.entry(okf).or_insert_with(|| {
                     poses.push(okf);
                     fixed.push(true);
@@ -268,10 +326,11 @@ impl LocalMapper {
                     uv: Vector2::new(kp.ux as f64, kp.uy as f64),
                     inv_sigma2: 1.0 / self.sigma2[kp.octave as usize],
                 });
-                obs_src.push((mp, okf));
+                self.obs_src.push((mp, okf));
             }
         }
-        p.poses = poses
+        p.poses = self
+            .ba_poses
             .iter()
             .map(|&l| {
                 map.keyframe(l)
@@ -280,47 +339,29 @@ impl LocalMapper {
             })
             .collect();
         p.pose_fixed = fixed;
-        if p.poses.iter().zip(&p.pose_fixed).all(|(_, &f)| f) {
-            return;
-        }
-        let cfg = &self.config;
-        self.ba.solve(
-            p,
-            &BaOptions {
-                iterations: cfg.ba_iterations_robust,
-                ..BaOptions::default()
-            },
-        );
-        p.classify_outliers(5.991);
-        self.ba.solve(
-            p,
-            &BaOptions {
-                iterations: cfg.ba_iterations,
-                robust_delta2: None,
-                ..BaOptions::default()
-            },
-        );
-        p.excluded.iter_mut().for_each(|e| *e = false);
-        p.classify_outliers(5.991);
-        // Write back.
-        for (i, &l) in poses.iter().enumerate() {
+        !p.pose_fixed.iter().all(|&f| f)
+    }
+
+    fn write_back(&mut self, map: &mut Map) {
+        let p = &self.problem;
+        for (i, &l) in self.ba_poses.iter().enumerate() {
             if !p.pose_fixed[i] {
                 if let Some(k) = map.keyframe_mut(l) {
                     k.t_cw = p.poses[i];
                 }
             }
         }
-        for (j, &mp) in points.iter().enumerate() {
+        for (j, &mp) in self.ba_points.iter().enumerate() {
             if let Some(m) = map.point_mut(mp) {
                 m.position = p.points[j];
             }
         }
-        for (o, &(mp, okf)) in obs_src.iter().enumerate() {
+        for (o, &(mp, okf)) in self.obs_src.iter().enumerate() {
             if p.excluded[o] {
                 map.erase_observation(mp, okf);
             }
         }
-        for &mp in &points {
+        for &mp in &self.ba_points {
             map.update_point_geometry(mp);
         }
     }
