@@ -1,6 +1,7 @@
 //! End to end: the built-in sequence, written as a TUM folder and replayed through the
-//! file-backed mock, is tracked (>= 95% of frames, ATE under 2% of the trajectory's extent), and
-//! `--deterministic` runs give identical trajectories.
+//! file-backed mock, is tracked (>= 95% of frames, ATE under 2% of the trajectory's extent) with
+//! local mapping inline or on its own thread, and `--deterministic` runs give identical
+//! trajectories.
 
 mod common;
 

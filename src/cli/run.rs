@@ -101,7 +101,13 @@ pub fn run(a: RunArgs) -> Result<()> {
     let deadline_ms = config.runtime.deadline_ms.unwrap_or(1e3 / calib.fps);
     let rectify = (!calib.camera.is_distortion_free()).then(|| RectifyMap::new(&calib.camera));
 
-    let mut system = System::new(&calib, &config, info.len.unwrap_or(10_000));
+    // Deterministic: one thread (mapping inline). Otherwise local mapping gets its own thread.
+    let mut system = System::new(
+        &calib,
+        &config,
+        info.len.unwrap_or(10_000),
+        !a.deterministic,
+    );
     let mut frame = Frame::new(info.width, info.height);
     let mut undistorted = Frame::new(info.width, info.height);
     let capacity = info.len.unwrap_or(100_000).max(16);
@@ -159,13 +165,17 @@ pub fn run(a: RunArgs) -> Result<()> {
 
     report.wall_time_s = started.elapsed().as_secs_f64();
     report.peak_rss_mb = io::peak_rss_mb();
+    if !system.finish() {
+        report.stopped_early.get_or_insert_with(|| {
+            "the local-mapping thread panicked; outputs written from the map as it was".into()
+        });
+    }
     report.timing_ms.tracking = frame_timer.percentiles();
     report.timing_ms.orb_extraction = system.stats.orb_extraction.percentiles();
     report.timing_ms.local_ba = system.stats.local_mapping.percentiles();
     report.tracked_frames = system.stats.tracked_frames;
     report.lost_episodes = system.tracker.lost_episodes;
-    report.keyframes = system.map.n_keyframes();
-    report.map_points = system.map.n_points();
+    (report.keyframes, report.map_points) = system.map_size();
     let trajectory = system.trajectory();
     let keyframes = system.keyframe_trajectory();
     write_tum_trajectory(&a.out.join("trajectory.txt"), &trajectory)?;

@@ -2,7 +2,12 @@
 //! keyframe is mapped (local mapping) before the next frame. Same algorithms as the threaded
 //! runtime; identical results on re-runs.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
 use std::time::Instant;
+
+use crossbeam_channel::{bounded, Sender, TrySendError};
 
 use crate::camera_model::{Calibration, PinholeRadtan};
 use crate::config::Config;
@@ -41,12 +46,29 @@ pub struct SystemStats {
     pub local_mapping: StageTimer,
 }
 
+/// Where local mapping runs.
+enum Mapping {
+    /// On the tracking thread, right after the keyframe is made (deterministic mode).
+    Inline(Box<LocalMapper>),
+    /// On its own thread, fed by a bounded channel; never holds the map during BA.
+    Thread {
+        tx: Option<Sender<KeyFrameId>>,
+        handle: Option<JoinHandle<StageTimer>>,
+        idle: Arc<AtomicBool>,
+    },
+}
+
+/// Locks the map; a panicked mapping thread must not take tracking down with it.
+fn lock(map: &Mutex<Map>) -> MutexGuard<'_, Map> {
+    map.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 pub struct System {
     pub camera: PinholeRadtan,
     extractor: OrbExtractor,
-    pub map: Map,
+    map: Arc<Mutex<Map>>,
     pub tracker: Tracker,
-    mapper: LocalMapper,
+    mapping: Mapping,
     init: Initializer,
     frame: TrackedFrame,
     trajectory: Vec<TrajectoryEntry>,
@@ -56,23 +78,35 @@ pub struct System {
 impl System {
     /// Builds every buffer for images of the calibration's size. Frames passed to [`process`]
     /// must be undistorted (rectified) images of that size.
-    pub fn new(calib: &Calibration, config: &Config, expected_frames: usize) -> Self {
+    /// `threaded`: local mapping on its own thread (real-time use); otherwise inline and
+    /// deterministic.
+    pub fn new(
+        calib: &Calibration,
+        config: &Config,
+        expected_frames: usize,
+        threaded: bool,
+    ) -> Self {
         let camera = calib.camera.undistorted();
         let (w, h) = (camera.width as usize, camera.height as usize);
         let extractor = OrbExtractor::new(w, h, &config.orb);
         let scales = extractor.pyramid().scales.clone();
         let max_features = config.orb.n_features * 2;
-        let map = Map::new(MapConfig {
+        let map = Arc::new(Mutex::new(Map::new(MapConfig {
             max_features,
             width: w,
             height: h,
             scale_factor: config.orb.scale_factor,
             n_levels: config.orb.n_levels,
             ..MapConfig::default()
-        });
+        })));
+        let mapping = if threaded {
+            spawn_mapper(camera, &scales, Arc::clone(&map), expected_frames)
+        } else {
+            Mapping::Inline(Box::new(LocalMapper::new(camera, &scales)))
+        };
         System {
             tracker: Tracker::new(camera, scales.clone(), max_features),
-            mapper: LocalMapper::new(camera, &scales),
+            mapping,
             init: Initializer::new(max_features, w, h),
             frame: TrackedFrame::new(max_features, w, h),
             trajectory: Vec::with_capacity(expected_frames),
@@ -95,6 +129,36 @@ impl System {
         self.tracker.state
     }
 
+    /// Keyframes and map points in the map now.
+    pub fn map_size(&self) -> (usize, usize) {
+        let m = lock(&self.map);
+        (m.n_keyframes(), m.n_points())
+    }
+
+    /// Read access to the map (locks it; keep the guard short in threaded mode).
+    pub fn map(&self) -> MutexGuard<'_, Map> {
+        lock(&self.map)
+    }
+
+    /// Stops the mapping thread after it has processed every queued keyframe, and joins it.
+    /// Returns false when the thread had panicked (the map is still usable).
+    pub fn finish(&mut self) -> bool {
+        let Mapping::Thread { tx, handle, idle } = &mut self.mapping else {
+            return true;
+        };
+        tx.take();
+        let ok = match handle.take().map(|h| h.join()) {
+            Some(Ok(timer)) => {
+                self.stats.local_mapping = timer;
+                true
+            }
+            Some(Err(_)) => false,
+            None => true,
+        };
+        idle.store(true, Ordering::Release);
+        ok
+    }
+
     /// Tracks one undistorted frame (grey, optional RGB of the same size).
     pub fn process(
         &mut self,
@@ -112,20 +176,25 @@ impl System {
         self.extractor.extract(gray, None, &mut f.features);
         self.stats.orb_extraction.record(te.elapsed());
         f.reset_matches();
+        // The map is locked for tracking only (extraction runs unlocked).
+        let map_arc = Arc::clone(&self.map);
+        let mut map_guard = lock(&map_arc);
+        let map = &mut *map_guard;
         let mut new_keyframe = false;
         let state = if self.tracker.state == TrackingState::NotInitialised {
-            self.initialize(gray, rgb)
+            self.initialize(map, gray, rgb)
         } else {
-            let st = self.tracker.track(&mut self.map, &mut self.frame);
-            if st == TrackingState::Ok && self.tracker.need_keyframe(&self.map, &self.frame) {
-                self.stats.tracking.record(t0.elapsed());
-                let tm = Instant::now();
-                new_keyframe = self.insert_keyframe(gray, rgb);
-                self.stats.local_mapping.record(tm.elapsed());
+            let st = self.tracker.track(map, &mut self.frame);
+            let idle = match &self.mapping {
+                Mapping::Inline(_) => true,
+                Mapping::Thread { idle, .. } => idle.load(Ordering::Acquire),
+            };
+            if st == TrackingState::Ok && self.tracker.need_keyframe(map, &self.frame, idle) {
+                new_keyframe = self.insert_keyframe(map, gray, rgb, t0);
             }
-            if st == TrackingState::Lost && self.map.n_keyframes() <= 5 {
+            if st == TrackingState::Lost && map.n_keyframes() <= 5 {
                 // Lost right after initialisation: start over (ORB-SLAM's policy).
-                self.reset();
+                self.reset(map);
             }
             self.tracker.state
         };
@@ -138,7 +207,7 @@ impl System {
             let f = &self.frame;
             let reference = self.tracker.reference_kf;
             let t_c_ref = reference
-                .and_then(|r| self.map.keyframe(r))
+                .and_then(|r| map.keyframe(r))
                 .map(|k| f.t_cw.0 * k.t_cw.0.inverse())
                 .unwrap_or(f.t_cw.0);
             self.trajectory.push(TrajectoryEntry {
@@ -157,8 +226,8 @@ impl System {
         }
     }
 
-    fn reset(&mut self) {
-        self.map.reset();
+    fn reset(&mut self, map: &mut Map) {
+        map.reset();
         self.tracker.state = TrackingState::NotInitialised;
         self.tracker.reference_kf = None;
         self.tracker.velocity = None;
@@ -166,7 +235,7 @@ impl System {
         self.stats.resets += 1;
     }
 
-    fn initialize(&mut self, gray: &[u8], rgb: Option<&[u8]>) -> TrackingState {
+    fn initialize(&mut self, map: &mut Map, gray: &[u8], rgb: Option<&[u8]>) -> TrackingState {
         let mut ready = None;
         let k = self.camera.k();
         if self.init.attempt(&self.frame, gray, rgb, &k, &mut ready) != InitAttempt::Ready {
@@ -179,7 +248,7 @@ impl System {
             return TrackingState::NotInitialised;
         };
         let init = &self.init;
-        let Ok(kf0) = self.map.insert_keyframe(|kf| {
+        let Ok(kf0) = map.insert_keyframe(|kf| {
             kf.keypoints.extend_from_slice(&reference.keypoints);
             kf.descriptors.extend_from_slice(&reference.descriptors);
             kf.frame_index = init.reference_index;
@@ -191,7 +260,7 @@ impl System {
             return TrackingState::NotInitialised;
         };
         let f = &self.frame;
-        let Ok(kf1) = self.map.insert_keyframe(|kf| {
+        let Ok(kf1) = map.insert_keyframe(|kf| {
             kf.keypoints.extend_from_slice(&f.features.keypoints);
             kf.descriptors.extend_from_slice(&f.features.descriptors);
             kf.frame_index = f.index;
@@ -203,44 +272,44 @@ impl System {
                 kf.has_color = true;
             }
         }) else {
-            self.map.reset();
+            map.reset();
             return TrackingState::NotInitialised;
         };
         for (m, &(i, j)) in pairs.iter().enumerate() {
             let Some(p) = motion.points[m] else { continue };
-            let Ok(mp) = self.map.insert_point(p, kf0) else {
+            let Ok(mp) = map.insert_point(p, kf0) else {
                 break;
             };
-            self.map.add_observation(mp, kf0, i as usize);
-            self.map.add_observation(mp, kf1, j as usize);
-            self.map.update_point_geometry(mp);
+            map.add_observation(mp, kf0, i as usize);
+            map.add_observation(mp, kf1, j as usize);
+            map.update_point_geometry(mp);
         }
-        self.map.update_connections(kf0);
-        self.map.update_connections(kf1);
-        self.global_ba(20);
+        map.update_connections(kf0);
+        map.update_connections(kf1);
+        self.global_ba(map, 20);
         // Scale the map to median depth 1.
-        let Some(median) = median_depth(&self.map, kf0).filter(|m| *m > 0.0) else {
-            self.map.reset();
+        let Some(median) = median_depth(map, kf0).filter(|m| *m > 0.0) else {
+            map.reset();
             return TrackingState::NotInitialised;
         };
-        let tracked = self.map.keyframe(kf1).map_or(0, |k| k.observed().count());
+        let tracked = map.keyframe(kf1).map_or(0, |k| k.observed().count());
         if tracked < 100 {
-            self.map.reset();
+            map.reset();
             return TrackingState::NotInitialised;
         }
         let inv = 1.0 / median;
-        if let Some(k) = self.map.keyframe_mut(kf1) {
+        if let Some(k) = map.keyframe_mut(kf1) {
             k.t_cw.0.translation.vector *= inv;
         }
-        let pts: Vec<_> = self.map.points().map(|(id, _)| id).collect();
+        let pts: Vec<_> = map.points().map(|(id, _)| id).collect();
         for p in pts {
-            if let Some(mp) = self.map.point_mut(p) {
+            if let Some(mp) = map.point_mut(p) {
                 mp.position *= inv;
             }
-            self.map.update_point_geometry(p);
+            map.update_point_geometry(p);
         }
         // The current frame continues from keyframe 1.
-        let k1 = self.map.keyframe(kf1).map(|k| (k.t_cw, k.points.clone()));
+        let k1 = map.keyframe(kf1).map(|k| (k.t_cw, k.points.clone()));
         if let Some((t, pts)) = k1 {
             self.frame.t_cw = t;
             self.frame.points.copy_from_slice(&pts);
@@ -260,9 +329,21 @@ impl System {
         TrackingState::Ok
     }
 
-    fn insert_keyframe(&mut self, gray: &[u8], rgb: Option<&[u8]>) -> bool {
+    /// Makes a keyframe of the current frame and maps it (inline) or queues it (thread).
+    fn insert_keyframe(
+        &mut self,
+        map: &mut Map,
+        gray: &[u8],
+        rgb: Option<&[u8]>,
+        t0: Instant,
+    ) -> bool {
+        if let Mapping::Thread { tx: Some(tx), .. } = &self.mapping {
+            if tx.is_full() {
+                return false;
+            }
+        }
         let f = &self.frame;
-        let res = self.map.insert_keyframe(|kf| {
+        let res = map.insert_keyframe(|kf| {
             kf.keypoints.extend_from_slice(&f.features.keypoints);
             kf.descriptors.extend_from_slice(&f.features.descriptors);
             kf.frame_index = f.index;
@@ -277,12 +358,28 @@ impl System {
         let Ok(kf) = res else { return false };
         let obs: Vec<_> = self.frame.inlier_points().collect();
         for (i, mp) in obs {
-            self.map.add_observation(mp, kf, i);
+            map.add_observation(mp, kf, i);
         }
-        self.mapper.process(&mut self.map, kf);
+        match &mut self.mapping {
+            Mapping::Inline(mapper) => {
+                self.stats.tracking.record(t0.elapsed());
+                let tm = Instant::now();
+                mapper.process(map, kf);
+                self.stats.local_mapping.record(tm.elapsed());
+            }
+            Mapping::Thread { tx, idle, .. } => {
+                idle.store(false, Ordering::Release);
+                match tx.as_ref().map(|t| t.try_send(kf)) {
+                    Some(Ok(())) => {}
+                    Some(Err(TrySendError::Full(_)))
+                    | Some(Err(TrySendError::Disconnected(_)))
+                    | None => {}
+                }
+            }
+        }
         // The frame's matches may have been culled: keep only live points.
         for p in self.frame.points.iter_mut() {
-            if p.is_some_and(|id| self.map.point(id).is_none()) {
+            if p.is_some_and(|id| map.point(id).is_none()) {
                 *p = None;
             }
         }
@@ -293,9 +390,9 @@ impl System {
     }
 
     /// Full BA of the map (first keyframe fixed).
-    pub fn global_ba(&mut self, iterations: usize) {
-        let kfs: Vec<KeyFrameId> = self.map.keyframes().map(|(id, _)| id).collect();
-        let pts: Vec<_> = self.map.points().map(|(id, _)| id).collect();
+    fn global_ba(&mut self, map: &mut Map, iterations: usize) {
+        let kfs: Vec<KeyFrameId> = map.keyframes().map(|(id, _)| id).collect();
+        let pts: Vec<_> = map.points().map(|(id, _)| id).collect();
         let mut index = std::collections::HashMap::new();
         let mut p = BaProblem {
             fx: self.camera.fx,
@@ -306,7 +403,7 @@ impl System {
         };
         for (i, &k) in kfs.iter().enumerate() {
             index.insert(k, i as u32);
-            let kf = self.map.keyframe(k);
+            let kf = map.keyframe(k);
             p.poses
                 .push(kf.map_or(CameraFromWorld::identity(), |k| k.t_cw));
             p.pose_fixed
@@ -314,12 +411,12 @@ impl System {
         }
         let scales = &self.tracker.scales;
         for (j, &mp) in pts.iter().enumerate() {
-            let Some(m) = self.map.point(mp) else {
+            let Some(m) = map.point(mp) else {
                 continue;
             };
             p.points.push(m.position);
             for &(kf, i) in &m.observations {
-                let (Some(&pi), Some(k)) = (index.get(&kf), self.map.keyframe(kf)) else {
+                let (Some(&pi), Some(k)) = (index.get(&kf), map.keyframe(kf)) else {
                     continue;
                 };
                 let kp = &k.keypoints[i as usize];
@@ -340,12 +437,12 @@ impl System {
             },
         );
         for (i, &k) in kfs.iter().enumerate() {
-            if let Some(kf) = self.map.keyframe_mut(k) {
+            if let Some(kf) = map.keyframe_mut(k) {
                 kf.t_cw = p.poses[i];
             }
         }
         for (j, &mp) in pts.iter().enumerate() {
-            if let Some(m) = self.map.point_mut(mp) {
+            if let Some(m) = map.point_mut(mp) {
                 m.position = p.points[j];
             }
         }
@@ -353,10 +450,11 @@ impl System {
 
     /// Poses (`T_wc`) of every tracked frame, following their reference keyframe's correction.
     pub fn trajectory(&self) -> Vec<TimedPose> {
+        let map = lock(&self.map);
         self.trajectory
             .iter()
             .map(|e| {
-                let t_cw = match e.reference.and_then(|r| self.map.keyframe(r)) {
+                let t_cw = match e.reference.and_then(|r| map.keyframe(r)) {
                     Some(k) => CameraFromWorld(e.t_c_ref * k.t_cw.0),
                     None => e.t_cw,
                 };
@@ -370,8 +468,8 @@ impl System {
 
     /// Final keyframe poses, by time.
     pub fn keyframe_trajectory(&self) -> Vec<TimedPose> {
-        let mut v: Vec<TimedPose> = self
-            .map
+        let map = lock(&self.map);
+        let mut v: Vec<TimedPose> = map
             .keyframes()
             .map(|(_, k)| TimedPose {
                 timestamp: k.timestamp,
@@ -380,5 +478,55 @@ impl System {
             .collect();
         v.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
         v
+    }
+}
+
+impl Drop for System {
+    fn drop(&mut self) {
+        self.finish();
+    }
+}
+
+/// Starts the local-mapping thread: per keyframe, prepare under the lock, BA without it, write
+/// back under the lock. Exits when the channel closes (after draining it).
+fn spawn_mapper(
+    camera: PinholeRadtan,
+    scales: &[f64],
+    map: Arc<Mutex<Map>>,
+    expected: usize,
+) -> Mapping {
+    let mut mapper = LocalMapper::new(camera, scales);
+    let (tx, rx) = bounded::<KeyFrameId>(8);
+    let idle = Arc::new(AtomicBool::new(true));
+    let idle_t = Arc::clone(&idle);
+    let handle = std::thread::Builder::new()
+        .name("local-mapping".into())
+        .spawn(move || {
+            let mut timer = StageTimer::with_capacity(expected.max(16));
+            while let Ok(kf) = rx.recv() {
+                idle_t.store(false, Ordering::Release);
+                let t = Instant::now();
+                let has_ba = mapper.prepare(&mut lock(&map), kf);
+                if has_ba {
+                    mapper.solve();
+                }
+                mapper.finish(&mut lock(&map), kf);
+                timer.record(t.elapsed());
+                idle_t.store(rx.is_empty(), Ordering::Release);
+            }
+            timer
+        })
+        .ok();
+    match handle {
+        Some(h) => Mapping::Thread {
+            tx: Some(tx),
+            handle: Some(h),
+            idle,
+        },
+        // No thread could be started: fall back to inline mapping (still correct).
+        None => Mapping::Inline(Box::new(LocalMapper::new(
+            PinholeRadtan::pinhole(1.0, 1.0, 0.0, 0.0, 1, 1),
+            &[1.0],
+        ))),
     }
 }

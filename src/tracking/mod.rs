@@ -283,10 +283,10 @@ impl Tracker {
         self.state
     }
 
-    /// ORB-SLAM's keyframe rule for a single-thread mapper (always idle): enough frames since
-    /// the last keyframe, and the frame tracks fewer than 90% of the reference's well-observed
-    /// points but more than 15.
-    pub fn need_keyframe(&self, map: &Map, f: &TrackedFrame) -> bool {
+    /// ORB-SLAM's keyframe rule: enough frames since the last keyframe (or local mapping idle),
+    /// and the frame tracks fewer than 90% of the reference's well-observed points but more
+    /// than 15.
+    pub fn need_keyframe(&self, map: &Map, f: &TrackedFrame, mapping_idle: bool) -> bool {
         if self.state != TrackingState::Ok {
             return false;
         }
@@ -308,7 +308,7 @@ impl Tracker {
         let tracked = f.n_inliers();
         let since = f.index.saturating_sub(self.last_keyframe_frame);
         let c1 = since >= self.config.max_frames_between_keyframes
-            || since >= self.config.min_frames_between_keyframes;
+            || (since >= self.config.min_frames_between_keyframes && mapping_idle);
         let c2 = (tracked as f64) < self.config.keyframe_ratio * ref_tracked as f64 && tracked > 15;
         c1 && c2
     }
