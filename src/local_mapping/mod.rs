@@ -1,8 +1,10 @@
 //! Local mapping (ORB-SLAM, section "Local Mapping"), run per new keyframe: point geometry
 //! updates, recent map-point culling, triangulation of new points with the best covisible
-//! keyframes (epipolar search, parallax, positive depth, reprojection and scale checks), local
-//! BA (the keyframe and its covisibles; keyframes that only see their points stay fixed), and
+//! keyframes (epipolar search, parallax, positive depth, reprojection and scale checks),
+//! duplicate fusion with the neighbours, local BA (the keyframe and its covisibles; keyframes that only see their points stay fixed), and
 //! keyframe culling (90% of points seen by >= 3 others at the same or finer scale).
+
+mod fusion;
 
 use nalgebra::{Matrix3, Vector2};
 
@@ -45,6 +47,7 @@ pub struct LocalMapper {
     camera: PinholeRadtan,
     k: Matrix3<f64>,
     sigma2: Vec<f64>,
+    scales: Vec<f64>,
     recent: Vec<MapPointId>,
     ba: BundleAdjuster,
     problem: BaProblem,
@@ -64,6 +67,7 @@ impl LocalMapper {
             k: camera.k(),
             camera,
             sigma2: scales.iter().map(|s| s * s).collect(),
+            scales: scales.to_vec(),
             recent: Vec::new(),
             ba: BundleAdjuster::new(),
             problem: BaProblem::default(),
@@ -99,6 +103,13 @@ impl LocalMapper {
         map.update_connections(kf);
         self.cull_points(map, kf);
         self.triangulate(map, kf);
+        fusion::search_in_neighbours(
+            map,
+            &self.camera,
+            &self.scales,
+            kf,
+            self.config.triangulation_neighbours,
+        );
         self.has_ba = map.n_keyframes() > 2 && self.build_local_ba(map, kf);
         self.has_ba
     }
