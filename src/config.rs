@@ -100,6 +100,23 @@ impl Default for RuntimeConfig {
     }
 }
 
+/// Capacities of the preallocated map (a full map evicts, never grows).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapCapacityConfig {
+    pub max_keyframes: usize,
+    pub max_map_points: usize,
+}
+
+impl Default for MapCapacityConfig {
+    fn default() -> Self {
+        MapCapacityConfig {
+            max_keyframes: 500,
+            max_map_points: 100_000,
+        }
+    }
+}
+
 /// The whole configuration.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -107,6 +124,7 @@ pub struct Config {
     pub orb: OrbConfig,
     pub semidense: SemiDenseConfig,
     pub runtime: RuntimeConfig,
+    pub map: MapCapacityConfig,
 }
 
 impl Config {
@@ -164,6 +182,12 @@ impl Config {
             return bad(
                 "semidense",
                 "n_neighbours, lambda_n and threads must be positive",
+            );
+        }
+        if self.map.max_keyframes < 20 || self.map.max_map_points < 1000 {
+            return bad(
+                "map",
+                "max_keyframes must be >= 20 and max_map_points >= 1000",
             );
         }
         if let Some(d) = self.runtime.deadline_ms {

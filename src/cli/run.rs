@@ -174,6 +174,7 @@ pub fn run(a: RunArgs) -> Result<()> {
     report.timing_ms.orb_extraction = system.stats.orb_extraction.percentiles();
     report.timing_ms.local_ba = system.stats.local_mapping.percentiles();
     report.tracked_frames = system.stats.tracked_frames;
+    report.backfilled_frames = system.stats.backfilled_frames;
     report.lost_episodes = system.tracker.lost_episodes;
     (report.keyframes, report.map_points) = system.map_size();
     let trajectory = system.trajectory();

@@ -16,6 +16,9 @@ use nalgebra::Vector3;
 
 use crate::matching::hamming;
 
+/// The newest keyframes are never evicted (tracking and mapping work on them).
+pub const RECENT_PROTECTED: usize = 10;
+
 pub type KeyFrameId = Handle<KeyFrame>;
 pub type MapPointId = Handle<MapPoint>;
 
@@ -118,12 +121,60 @@ impl Map {
         self.points.len()
     }
 
+    /// Frees a keyframe slot: erases the least useful keyframe, i.e. the one (neither the root
+    /// nor among the [`RECENT_PROTECTED`] newest) with the fewest points no other keyframe sees.
+    /// Returns whether one was erased.
+    pub fn evict_keyframe(&mut self) -> bool {
+        let mut serials: Vec<u64> = self.keyframes.iter().map(|(_, k)| k.serial).collect();
+        serials.sort_unstable();
+        let cutoff = serials
+            .len()
+            .checked_sub(RECENT_PROTECTED)
+            .map(|i| serials[i])
+            .unwrap_or(0);
+        let victim = self
+            .keyframes
+            .iter()
+            .filter(|(_, k)| k.parent.is_some() && k.serial < cutoff)
+            .min_by_key(|(_, k)| {
+                k.observed()
+                    .filter(|&(_, p)| {
+                        self.points
+                            .get(p)
+                            .is_some_and(|m| m.observations.len() <= 1)
+                    })
+                    .count()
+            })
+            .map(|(id, _)| id);
+        victim.is_some_and(|v| self.erase_keyframe(v))
+    }
+
+    /// Frees point slots: erases up to `n` points with the lowest found/visible ratio (then the
+    /// fewest observations). Returns how many were erased.
+    pub fn evict_points(&mut self, n: usize) -> usize {
+        let mut scored: Vec<(f64, usize, MapPointId)> = self
+            .points
+            .iter()
+            .map(|(id, p)| (p.found_ratio(), p.observations.len(), id))
+            .collect();
+        scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let k = n.min(scored.len());
+        for &(_, _, id) in &scored[..k] {
+            self.erase_point(id);
+        }
+        k
+    }
+
     /// Takes a recycled keyframe buffer, lets `fill` set it up, and stores it. `fill` must set
-    /// `points` to one entry per keypoint (the map resizes it if not).
+    /// `points` to one entry per keypoint (the map resizes it if not). A full map first evicts
+    /// its least useful keyframe ([`Map::evict_keyframe`]); it never grows.
     pub fn insert_keyframe(
         &mut self,
         fill: impl FnOnce(&mut KeyFrame),
     ) -> Result<KeyFrameId, MapFull> {
+        if self.kf_pool.is_empty() {
+            self.evict_keyframe();
+        }
         let cap = self.keyframes.capacity();
         let mut kf = self.kf_pool.pop().ok_or(MapFull::KeyFrames(cap))?;
         kf.clear();
@@ -138,12 +189,16 @@ impl Map {
         })
     }
 
-    /// Stores a new point at `position` (world), created by keyframe `reference`.
+    /// Stores a new point at `position` (world), created by keyframe `reference`. A full map
+    /// first evicts its least reliable 1% of points ([`Map::evict_points`]); it never grows.
     pub fn insert_point(
         &mut self,
         position: Vector3<f64>,
         reference: KeyFrameId,
     ) -> Result<MapPointId, MapFull> {
+        if self.mp_pool.is_empty() {
+            self.evict_points((self.points.capacity() / 100).max(1));
+        }
         let cap = self.points.capacity();
         let mut mp = self.mp_pool.pop().ok_or(MapFull::MapPoints(cap))?;
         mp.clear();

@@ -159,3 +159,24 @@ fn essential_graph_keeps_tree_strong_and_loop_edges() {
     assert!(e.contains(&(k0.min(k2), k0.max(k2))), "loop edge");
     assert_eq!(e.len(), 3);
 }
+
+#[test]
+fn a_full_map_evicts_instead_of_growing() {
+    let mut m = Map::new(MapConfig {
+        max_keyframes: RECENT_PROTECTED + 3,
+        max_map_points: 50,
+        ..small()
+    });
+    let root = add_kf(&mut m, 100, 0.0);
+    let mut prev = root;
+    for i in 1..40 {
+        let k = add_kf(&mut m, 100, i as f64 * 0.1);
+        share(&mut m, prev, k, (i % 5) * 10..(i % 5) * 10 + 10);
+        m.update_connections(k);
+        prev = k;
+        assert!(m.n_keyframes() <= RECENT_PROTECTED + 3);
+        assert!(m.n_points() <= 50);
+    }
+    assert!(m.keyframe(root).is_some(), "the root is never evicted");
+    assert!(m.keyframe(prev).is_some(), "the newest keyframe stays");
+}

@@ -26,6 +26,9 @@ pub struct Report {
     /// Frames delivered to tracking.
     pub frames: usize,
     pub tracked_frames: usize,
+    /// Of `tracked_frames`: frames between the initialisation reference and the initialising
+    /// frame, tracked against the first map once it existed (their poses came late).
+    pub backfilled_frames: usize,
     pub lost_episodes: usize,
     pub keyframes: usize,
     pub map_points: usize,

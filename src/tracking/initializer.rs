@@ -10,6 +10,9 @@ use crate::matching::search::search_for_initialization;
 use crate::matching::FeatureGrid;
 use crate::optimize::refine_two_view;
 
+/// Frames kept for backfilling (2 s at 30 fps).
+pub const PENDING_CAPACITY: usize = 60;
+
 /// Why an initialisation attempt did not produce a map (a state, not an error).
 #[derive(Clone, Debug, PartialEq)]
 pub enum InitAttempt {
@@ -32,6 +35,18 @@ pub struct Initializer {
     pub config: TwoViewConfig,
     /// Minimum features in a reference frame and minimum matches to attempt (ORB-SLAM: 100).
     pub min_matches: usize,
+    /// Frames seen since the reference (features kept so they can be tracked once the map
+    /// exists); a fixed ring of `pending_capacity` slots, reused.
+    pub pending: Vec<PendingFrame>,
+    pending_len: usize,
+}
+
+/// A frame between the reference and initialisation, kept for backfilling its pose.
+#[derive(Clone, Default)]
+pub struct PendingFrame {
+    pub index: u64,
+    pub timestamp: f64,
+    pub features: Features,
 }
 
 impl Initializer {
@@ -52,14 +67,46 @@ impl Initializer {
             matches: Vec::with_capacity(max_features),
             config: TwoViewConfig::default(),
             min_matches: 100,
+            pending: (0..PENDING_CAPACITY)
+                .map(|_| PendingFrame {
+                    features: Features::with_capacity(max_features),
+                    ..Default::default()
+                })
+                .collect(),
+            pending_len: 0,
         }
+    }
+
+    /// Frames kept since the reference, oldest first.
+    pub fn pending(&self) -> &[PendingFrame] {
+        &self.pending[..self.pending_len]
+    }
+
+    fn keep_pending(&mut self, f: &TrackedFrame) {
+        if self.pending_len == self.pending.len() {
+            return; // beyond the window: those frames stay untracked
+        }
+        let p = &mut self.pending[self.pending_len];
+        p.index = f.index;
+        p.timestamp = f.timestamp;
+        p.features.keypoints.clear();
+        p.features
+            .keypoints
+            .extend_from_slice(&f.features.keypoints);
+        p.features.descriptors.clear();
+        p.features
+            .descriptors
+            .extend_from_slice(&f.features.descriptors);
+        self.pending_len += 1;
     }
 
     pub fn reset(&mut self) {
         self.reference = None;
+        self.pending_len = 0;
     }
 
     fn set_reference(&mut self, f: &TrackedFrame, gray: &[u8], rgb: Option<&[u8]>) {
+        self.pending_len = 0;
         self.reference = Some(f.features.clone());
         self.reference_index = f.index;
         self.reference_timestamp = f.timestamp;
@@ -142,7 +189,10 @@ impl Initializer {
                 *out = Some((m, pairs));
                 InitAttempt::Ready
             }
-            Err(e) => InitAttempt::Failed(e),
+            Err(e) => {
+                self.keep_pending(f);
+                InitAttempt::Failed(e)
+            }
         }
     }
 }
