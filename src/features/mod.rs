@@ -56,4 +56,12 @@ impl Features {
         self.keypoints.clear();
         self.descriptors.clear();
     }
+
+    /// Copies `other` into these buffers (no allocation once the capacity suffices).
+    pub fn copy_from(&mut self, other: &Features) {
+        self.keypoints.clear();
+        self.keypoints.extend_from_slice(&other.keypoints);
+        self.descriptors.clear();
+        self.descriptors.extend_from_slice(&other.descriptors);
+    }
 }

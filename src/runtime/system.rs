@@ -366,14 +366,7 @@ impl System {
             let trans = p0.translation.vector.lerp(&p1.translation.vector, a);
             tf.index = pf.index;
             tf.timestamp = pf.timestamp;
-            tf.features.keypoints.clear();
-            tf.features
-                .keypoints
-                .extend_from_slice(&pf.features.keypoints);
-            tf.features.descriptors.clear();
-            tf.features
-                .descriptors
-                .extend_from_slice(&pf.features.descriptors);
+            tf.features.copy_from(&pf.features);
             tf.reset_matches();
             tf.t_cw = CameraFromWorld(Se3::from_parts(nalgebra::Translation3::from(trans), rot));
             projected.clear();

@@ -50,14 +50,7 @@ impl TrackedFrame {
         self.index = other.index;
         self.timestamp = other.timestamp;
         self.t_cw = other.t_cw;
-        self.features.keypoints.clear();
-        self.features
-            .keypoints
-            .extend_from_slice(&other.features.keypoints);
-        self.features.descriptors.clear();
-        self.features
-            .descriptors
-            .extend_from_slice(&other.features.descriptors);
+        self.features.copy_from(&other.features);
         self.points.clear();
         self.points.extend_from_slice(&other.points);
         self.outlier.clear();

@@ -89,14 +89,7 @@ impl Initializer {
         let p = &mut self.pending[self.pending_len];
         p.index = f.index;
         p.timestamp = f.timestamp;
-        p.features.keypoints.clear();
-        p.features
-            .keypoints
-            .extend_from_slice(&f.features.keypoints);
-        p.features.descriptors.clear();
-        p.features
-            .descriptors
-            .extend_from_slice(&f.features.descriptors);
+        p.features.copy_from(&f.features);
         self.pending_len += 1;
     }
 
