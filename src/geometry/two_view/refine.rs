@@ -141,6 +141,23 @@ fn rotated(r: &Matrix3<f64>, p: &nalgebra::DVector<f64>) -> Matrix3<f64> {
     nalgebra::Rotation3::new(Vector3::new(p[0], p[1], p[2])).matrix() * r
 }
 
+/// The inverse intrinsics and the inlier pairs a refinement works on; `None` when `k` is
+/// singular or fewer than 8 inliers remain (the motion is then kept as it is).
+fn setup<'a>(
+    x1: &'a [Vector2<f64>],
+    x2: &'a [Vector2<f64>],
+    inl: &[bool],
+    k: &Matrix3<f64>,
+) -> Option<(Matrix3<f64>, Pairs<'a>)> {
+    let kinv = k.try_inverse()?;
+    let pairs = Pairs {
+        x1,
+        x2,
+        idx: (0..x1.len()).filter(|&i| inl[i]).collect(),
+    };
+    (pairs.idx.len() >= 8).then_some((kinv, pairs))
+}
+
 /// Refines a general motion on the Sampson error of the inliers (the linear F keeps the noise of
 /// its fit); `|t| = 1` by normalisation.
 pub(super) fn refine_motion(
@@ -151,17 +168,9 @@ pub(super) fn refine_motion(
     inl: &[bool],
     k: &Matrix3<f64>,
 ) -> (Matrix3<f64>, Vector3<f64>) {
-    let Some(kinv) = k.try_inverse() else {
+    let Some((kinv, pairs)) = setup(x1, x2, inl, k) else {
         return (*r, *t);
     };
-    let pairs = Pairs {
-        x1,
-        x2,
-        idx: (0..x1.len()).filter(|&i| inl[i]).collect(),
-    };
-    if pairs.idx.len() < 8 {
-        return (*r, *t);
-    }
     let mut p = nalgebra::DVector::<f64>::from_column_slice(&[0.0, 0.0, 0.0, t.x, t.y, t.z]);
     robust_lm(&mut p, pairs.idx.len(), |q, out| {
         sampson(
@@ -187,17 +196,9 @@ pub(super) fn refine_planar_motion(
     inl: &[bool],
     k: &Matrix3<f64>,
 ) -> (Matrix3<f64>, Vector3<f64>) {
-    let Some(kinv) = k.try_inverse() else {
+    let Some((kinv, pairs)) = setup(x1, x2, inl, k) else {
         return (*r, *t);
     };
-    let pairs = Pairs {
-        x1,
-        x2,
-        idx: (0..x1.len()).filter(|&i| inl[i]).collect(),
-    };
-    if pairs.idx.len() < 8 {
-        return (*r, *t);
-    }
     // Initial plane: least squares of A - R = t n^T with A = K^-1 H K scaled to R's size.
     let mut a = kinv * h21 * k;
     let scale = {
