@@ -15,6 +15,7 @@ pub mod local_mapping;
 pub mod map;
 pub mod matching;
 pub mod optimize;
+pub mod place_recognition;
 pub mod runtime;
 pub mod synthetic;
 pub mod tracking;
