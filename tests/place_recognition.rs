@@ -6,8 +6,8 @@ mod common;
 use common::problems::Rng;
 use sdslam::features::Descriptor;
 use sdslam::place_recognition::{
-    decode_vocabulary, encode_vocabulary, l1_score, parse_dbow2_text, train, TrainConfig,
-    VocabularyFormatError,
+    decode_vocabulary, encode_vocabulary, l1_score, parse_dbow2_text, train, KeyFrameDatabase,
+    TrainConfig, VocabularyFormatError,
 };
 
 #[test]
@@ -161,4 +161,48 @@ fn trained_vocabulary_recognises_places() {
     );
     // Scores are in [0, 1] and a vector scores 1 with itself.
     assert!((l1_score(&bows[0].1, &bows[0].1) - 1.0).abs() < 1e-5);
+}
+
+#[test]
+fn keyframe_database_returns_the_same_place_first_and_forgets_removed_keyframes() {
+    let training: Vec<Vec<Descriptor>> = views(20, 3, 5).into_iter().map(|(_, v)| v).collect();
+    let v = train(
+        &training,
+        &TrainConfig {
+            k: 10,
+            levels: 3,
+            iterations: 8,
+            seed: 2,
+        },
+    )
+    .unwrap();
+    let mut db = KeyFrameDatabase::new(v.n_words());
+    // Keyframe key = place * 10 + view.
+    for (i, (p, d)) in views(20, 2, 5).iter().enumerate() {
+        db.add((*p * 10 + i % 2) as u32, &v.transform(d, 1).0);
+    }
+    assert_eq!(db.len(), 40);
+    let queries = views(20, 3, 5);
+    let mut correct = 0;
+    for (p, d) in &queries {
+        let r = db.query(&v.transform(d, 1).0, 0.0, 5, |_| false);
+        correct += r.first().is_some_and(|&(k, _)| k as usize / 10 == *p) as usize;
+        assert!(r.windows(2).all(|w| w[0].1 >= w[1].1));
+    }
+    assert!(
+        correct as f64 >= 0.95 * queries.len() as f64,
+        "{correct}/{}",
+        queries.len()
+    );
+    // Excluded and removed keyframes are never returned.
+    let q = v.transform(&queries[0].1, 1).0;
+    let r = db.query(&q, 0.0, 40, |k| k / 10 == 0);
+    assert!(r.iter().all(|&(k, _)| k / 10 != 0));
+    db.remove(0);
+    db.remove(1);
+    assert!(db
+        .query(&q, 0.0, 40, |_| false)
+        .iter()
+        .all(|&(k, _)| k != 0 && k != 1));
+    assert_eq!(db.len(), 38);
 }
