@@ -234,3 +234,75 @@ fn corrupt_frame_mid_sequence_is_skipped_and_counted() {
     assert_eq!(r["frames"], 3);
     assert_eq!(r["skipped_frames"], 1);
 }
+
+#[test]
+fn vocab_train_import_and_bad_files() {
+    let d = tempfile::tempdir().unwrap();
+    // Train on a few rendered frames of the built-in sequence.
+    let seq = d.path().join("seq");
+    let (ok, _, err) = sdslam(&[
+        "synth",
+        "--out",
+        seq.to_str().unwrap(),
+        "--frames",
+        "6",
+        "--depth-every",
+        "0",
+    ]);
+    assert!(ok, "{err}");
+    let voc = d.path().join("v.bin");
+    let (ok, out, err) = sdslam(&[
+        "vocab",
+        "train",
+        seq.to_str().unwrap(),
+        "--k",
+        "8",
+        "--levels",
+        "3",
+        "--every",
+        "2",
+        "--out",
+        voc.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("trained on 3 images"), "{out}");
+    // Re-import of the binary file gives the same bytes.
+    let again = d.path().join("v2.bin");
+    let (ok, _, err) = sdslam(&[
+        "vocab",
+        "import",
+        voc.to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(std::fs::read(&voc).unwrap(), std::fs::read(&again).unwrap());
+    // A truncated file and a text file that is not a vocabulary: clear errors naming the file.
+    let bytes = std::fs::read(&voc).unwrap();
+    let trunc = d.path().join("trunc.bin");
+    std::fs::write(&trunc, &bytes[..bytes.len() / 2]).unwrap();
+    let (ok, _, err) = sdslam(&[
+        "vocab",
+        "import",
+        trunc.to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("trunc.bin") && err.contains("truncated"),
+        "{err}"
+    );
+    let junk = d.path().join("junk.txt");
+    std::fs::write(&junk, "hello world\n").unwrap();
+    let (ok, _, err) = sdslam(&[
+        "vocab",
+        "import",
+        junk.to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("junk.txt") && err.contains("line 1"),
+        "{err}"
+    );
+}

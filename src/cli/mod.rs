@@ -5,6 +5,7 @@ mod features;
 mod run;
 mod source;
 mod synth;
+mod vocab;
 
 use std::path::PathBuf;
 
@@ -30,6 +31,9 @@ enum Command {
     /// Evaluate results against ground truth.
     #[command(subcommand)]
     Eval(eval::EvalCommand),
+    /// Train or import place-recognition vocabularies.
+    #[command(subcommand)]
+    Vocab(vocab::VocabCommand),
     /// Time ORB extraction on images (one thread): median time and feature count.
     Features(features::FeaturesArgs),
     /// Render the built-in synthetic sequence to a TUM RGB-D folder (images, depth, ground truth).
@@ -43,6 +47,7 @@ pub fn dispatch(cli: Cli) -> Result<()> {
         Some(Command::Eval(e)) => eval::eval(e),
         Some(Command::Synth(a)) => synth::synth(a),
         Some(Command::Features(a)) => features::features(a),
+        Some(Command::Vocab(v)) => vocab::vocab(v),
     }
 }
 

@@ -46,3 +46,27 @@ pub fn peak_rss_mb() -> f64 {
         .map(|kb| kb / 1024.0)
         .unwrap_or(0.0)
 }
+
+/// Reads a vocabulary: sdslam's binary format, or a DBoW2 text vocabulary (`ORBvoc.txt`
+/// layout, recognised by its text header). Errors name the file.
+pub fn load_vocabulary(path: &Path) -> Result<crate::place_recognition::Vocabulary> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let named = |e: crate::place_recognition::VocabularyFormatError| {
+        Error::Invalid(format!("{}: {e}", path.display()))
+    };
+    if bytes.starts_with(b"SDSLVOC") {
+        return crate::place_recognition::decode_vocabulary(&bytes).map_err(named);
+    }
+    let text = std::str::from_utf8(&bytes).map_err(|_| {
+        Error::Invalid(format!(
+            "{}: neither an sdslam vocabulary nor DBoW2 text",
+            path.display()
+        ))
+    })?;
+    crate::place_recognition::parse_dbow2_text(text).map_err(named)
+}
+
+/// Writes a vocabulary in sdslam's binary format (atomically).
+pub fn save_vocabulary(path: &Path, v: &crate::place_recognition::Vocabulary) -> Result<()> {
+    write_atomic(path, &crate::place_recognition::encode_vocabulary(v))
+}
