@@ -4,7 +4,7 @@
 
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector2, Vector3};
 
-use super::ransac::{iterations_needed, SeededRng};
+use super::ransac::{adaptive_ransac, RansacStop, SeededRng};
 use super::{umeyama, CameraFromWorld, Se3};
 
 type Mat12 = SMatrix<f64, 12, 12>;
@@ -416,28 +416,21 @@ pub fn pnp_ransac(
         return None;
     }
     let mut rng = SeededRng::new(cfg.seed);
-    let mut set = [0usize; 4];
-    let (mut sp, mut su) = ([Vector3::zeros(); 4], [Vector2::zeros(); 4]);
-    let mut cur = vec![false; n];
-    let mut best_inl = vec![false; n];
-    let mut best_n = 0;
-    let mut needed = cfg.max_iterations;
-    let mut it = 0;
-    while it < needed.min(cfg.max_iterations) {
-        it += 1;
-        rng.sample_distinct(n, &mut set);
-        for (j, &i) in set.iter().enumerate() {
-            sp[j] = pw[i];
-            su[j] = pixels[i];
-        }
-        let Some(t) = epnp(&sp, &su, k) else { continue };
-        let c = classify(&t, pw, pixels, sigma2, k, cfg.chi2, &mut cur);
-        if c > best_n {
-            best_n = c;
-            best_inl.copy_from_slice(&cur);
-            needed = iterations_needed(cfg.probability, c as f64 / n as f64, 4, cfg.max_iterations);
-        }
-    }
+    let stop = RansacStop {
+        probability: cfg.probability,
+        max_iterations: cfg.max_iterations,
+    };
+    let (_, best_inl, best_n) = adaptive_ransac::<CameraFromWorld, 4>(
+        n,
+        &mut rng,
+        stop,
+        |set| {
+            let sp: [Vector3<f64>; 4] = set.map(|i| pw[i]);
+            let su: [Vector2<f64>; 4] = set.map(|i| pixels[i]);
+            epnp(&sp, &su, k)
+        },
+        |t, out| classify(t, pw, pixels, sigma2, k, cfg.chi2, out),
+    )?;
     if best_n < cfg.min_inliers {
         return None;
     }

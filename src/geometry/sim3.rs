@@ -4,7 +4,7 @@
 
 use nalgebra::{Matrix3, Vector2, Vector3};
 
-use super::ransac::{iterations_needed, SeededRng};
+use super::ransac::{adaptive_ransac, RansacStop, SeededRng};
 use super::{horn, Sim3};
 
 /// Matched 3D points of two cameras with their observations.
@@ -105,27 +105,17 @@ pub fn sim3_ransac(
         return None;
     }
     let mut rng = SeededRng::new(cfg.seed);
-    let mut set = [0usize; 3];
-    let mut cur = vec![false; n];
-    let mut best = vec![false; n];
-    let mut best_n = 0;
-    let mut needed = cfg.max_iterations;
-    let mut it = 0;
-    while it < needed.min(cfg.max_iterations) {
-        it += 1;
-        rng.sample_distinct(n, &mut set);
-        let a: Vec<Vector3<f64>> = set.iter().map(|&i| m.p2[i]).collect();
-        let b: Vec<Vector3<f64>> = set.iter().map(|&i| m.p1[i]).collect();
-        let Some(s12) = horn(&a, &b, cfg.with_scale) else {
-            continue;
-        };
-        let c = classify(&s12, m, k1, k2, cfg.chi2, &mut cur);
-        if c > best_n {
-            best_n = c;
-            best.copy_from_slice(&cur);
-            needed = iterations_needed(cfg.probability, c as f64 / n as f64, 3, cfg.max_iterations);
-        }
-    }
+    let stop = RansacStop {
+        probability: cfg.probability,
+        max_iterations: cfg.max_iterations,
+    };
+    let (_, best, best_n) = adaptive_ransac::<Sim3, 3>(
+        n,
+        &mut rng,
+        stop,
+        |set| horn(&set.map(|i| m.p2[i]), &set.map(|i| m.p1[i]), cfg.with_scale),
+        |s12, out| classify(s12, m, k1, k2, cfg.chi2, out),
+    )?;
     if best_n < cfg.min_inliers {
         return None;
     }
