@@ -1,22 +1,15 @@
 //! Geometry solver costs: one two-view initialisation attempt (1000 matches, 200 RANSAC
 //! iterations, H and F in parallel) and one PnP-RANSAC call (300 correspondences, 30% outliers).
 
+#[path = "../tests/common/problems.rs"]
+mod problems;
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::{Matrix3, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
+use problems::Rng;
 use sdslam::geometry::pnp::{pnp_ransac, PnpRansacConfig};
 use sdslam::geometry::two_view::{initialize, TwoViewConfig};
 use sdslam::geometry::Se3;
-
-struct Rng(u64);
-impl Rng {
-    fn f(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-}
 
 fn geometry(c: &mut Criterion) {
     let k = Matrix3::new(520.0, 0.0, 320.0, 0.0, 520.0, 240.0, 0.0, 0.0, 1.0);

@@ -1,6 +1,9 @@
 //! Property tests of the geometry solvers on random scenes (planar and general, 0.5-1 px noise,
 //! 0-50% outliers), with seeded RANSAC so every case is reproducible.
 
+mod common;
+
+use common::problems::Rng;
 use nalgebra::{Matrix3, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use sdslam::geometry::pnp::{pnp_ransac, PnpRansacConfig};
@@ -10,23 +13,6 @@ use sdslam::geometry::{Se3, Sim3};
 
 fn k() -> Matrix3<f64> {
     Matrix3::new(520.0, 0.0, 320.0, 0.0, 520.0, 240.0, 0.0, 0.0, 1.0)
-}
-
-struct Rng(u64);
-impl Rng {
-    fn f(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.f()
-    }
-    fn gauss(&mut self) -> f64 {
-        (-2.0 * self.f().ln()).sqrt() * (std::f64::consts::TAU * self.f()).cos()
-    }
 }
 
 fn project(p: &Vector3<f64>) -> Vector2<f64> {
