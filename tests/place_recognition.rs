@@ -124,10 +124,10 @@ fn small_trained() -> sdslam::place_recognition::Vocabulary {
     .unwrap()
 }
 
-#[test]
-fn trained_vocabulary_recognises_places() {
+/// A k = 10, L = 3 vocabulary trained on 3 views of each of 20 simulated places.
+fn trained_on_20_places() -> sdslam::place_recognition::Vocabulary {
     let training: Vec<Vec<Descriptor>> = views(20, 3, 5).into_iter().map(|(_, v)| v).collect();
-    let v = train(
+    train(
         &training,
         &TrainConfig {
             k: 10,
@@ -136,7 +136,12 @@ fn trained_vocabulary_recognises_places() {
             seed: 2,
         },
     )
-    .unwrap();
+    .unwrap()
+}
+
+#[test]
+fn trained_vocabulary_recognises_places() {
+    let v = trained_on_20_places();
     assert!(v.n_words() > 100, "{}", v.n_words());
     // New views of the same places (same seed: same bases, new noise draws).
     let test = views(20, 4, 5);
@@ -165,17 +170,7 @@ fn trained_vocabulary_recognises_places() {
 
 #[test]
 fn keyframe_database_returns_the_same_place_first_and_forgets_removed_keyframes() {
-    let training: Vec<Vec<Descriptor>> = views(20, 3, 5).into_iter().map(|(_, v)| v).collect();
-    let v = train(
-        &training,
-        &TrainConfig {
-            k: 10,
-            levels: 3,
-            iterations: 8,
-            seed: 2,
-        },
-    )
-    .unwrap();
+    let v = trained_on_20_places();
     let mut db = KeyFrameDatabase::new(v.n_words());
     // Keyframe key = place * 10 + view.
     for (i, (p, d)) in views(20, 2, 5).iter().enumerate() {
