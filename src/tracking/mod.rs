@@ -81,6 +81,9 @@ pub struct Tracker {
     proj_ids: Vec<crate::map::MapPointId>,
     /// Per projected point: its keypoint index in the last frame (rotation check).
     proj_kp: Vec<usize>,
+    /// Per keypoint of the current frame: matched projected point (reused every frame).
+    matches: Vec<Option<u32>>,
+    rot: RotationHistogram,
     scratch: Vec<u32>,
     pts: Vec<Vector3<f64>>,
     obs: Vec<Vector2<f64>>,
@@ -109,6 +112,8 @@ impl Tracker {
             projected: Vec::with_capacity(max_features * 8),
             proj_ids: Vec::with_capacity(max_features * 8),
             proj_kp: Vec::with_capacity(max_features),
+            matches: Vec::with_capacity(max_features),
+            rot: RotationHistogram::with_capacity(max_features / 8),
             scratch: Vec::with_capacity(256),
             pts: Vec::with_capacity(max_features),
             obs: Vec::with_capacity(max_features),
@@ -186,7 +191,9 @@ impl Tracker {
                 self.proj_ids.push(mp);
                 self.proj_kp.push(i);
             }
-            let mut m: Vec<Option<u32>> = vec![None; f.features.len()];
+            let m = &mut self.matches;
+            m.clear();
+            m.resize(f.features.len(), None);
             search_by_projection(
                 &self.projected,
                 &f.features.keypoints,
@@ -195,10 +202,16 @@ impl Tracker {
                 &self.scales,
                 radius,
                 0.9,
-                &mut m,
+                m,
                 &mut self.scratch,
             );
-            rotation_filter(&self.proj_kp, &self.last, &f.features.keypoints, &mut m);
+            rotation_filter(
+                &self.proj_kp,
+                &self.last,
+                &f.features.keypoints,
+                m,
+                &mut self.rot,
+            );
             let mut n = 0;
             for (j, mm) in m.iter().enumerate() {
                 if let Some(id) = mm {
@@ -222,7 +235,8 @@ impl Tracker {
         f.t_cw = self.last.t_cw;
         f.points.iter_mut().for_each(|p| *p = None);
         let mut best_for: Vec<(u32, usize)> = vec![(u32::MAX, usize::MAX); f.features.len()];
-        let mut rot = RotationHistogram::default();
+        let rot = &mut self.rot;
+        rot.clear();
         for (i, mp) in kf.observed() {
             let d1 = &kf.descriptors[i];
             let (mut b, mut s, mut bj) = (u32::MAX, u32::MAX, usize::MAX);
@@ -321,8 +335,9 @@ fn rotation_filter(
     last: &TrackedFrame,
     kps: &[crate::features::KeyPoint],
     m: &mut [Option<u32>],
+    rot: &mut RotationHistogram,
 ) {
-    let mut rot = RotationHistogram::default();
+    rot.clear();
     for (j, mm) in m.iter().enumerate() {
         if let Some(&li) = mm.and_then(|id| proj_kp.get(id as usize)) {
             rot.add(last.features.keypoints[li].angle, kps[j].angle, j as u32);
