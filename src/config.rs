@@ -62,6 +62,13 @@ pub struct SemiDenseConfig {
     pub keyframe_delay: usize,
     /// Worker threads for per-pixel work.
     pub threads: usize,
+    /// Largest similarity error e(u0) (eq. 3) accepted as a match; not in the paper, which
+    /// keeps the best pixel whatever its error. 5.99 is the 95% chi-square bound of eq. 3's
+    /// two normalised residuals.
+    pub max_similarity_error: f64,
+    /// Capacity of the stored semi-dense pixels over the run (a full store skips keyframes,
+    /// counted in the report).
+    pub max_points: usize,
 }
 
 impl Default for SemiDenseConfig {
@@ -77,6 +84,8 @@ impl Default for SemiDenseConfig {
             theta: 0.23,
             keyframe_delay: 10,
             threads: 2,
+            max_similarity_error: 5.99,
+            max_points: 8_000_000,
         }
     }
 }
@@ -176,6 +185,12 @@ impl Config {
             return bad(
                 "semidense",
                 "sigma_i and theta must be positive, lambda_g non-negative",
+            );
+        }
+        if sd.max_similarity_error <= 0.0 || !sd.max_similarity_error.is_finite() {
+            return bad(
+                "semidense.max_similarity_error",
+                "must be a positive number",
             );
         }
         if sd.n_neighbours == 0 || sd.lambda_n == 0 || sd.threads == 0 {

@@ -17,6 +17,7 @@ pub mod matching;
 pub mod optimize;
 pub mod place_recognition;
 pub mod runtime;
+pub mod semidense;
 pub mod synthetic;
 pub mod tracking;
 

@@ -1,5 +1,6 @@
 //! Subcommands of `sdslam`.
 
+mod densify;
 mod eval;
 mod features;
 mod run;
@@ -28,6 +29,8 @@ pub struct Cli {
 enum Command {
     /// Run SLAM on a source and write trajectory.txt, keyframes.txt, semidense.ply and report.json.
     Run(run::RunArgs),
+    /// Semi-dense reconstruction from given poses (offline): semidense.ply, depth maps, report.
+    Densify(densify::DensifyArgs),
     /// Evaluate results against ground truth.
     #[command(subcommand)]
     Eval(eval::EvalCommand),
@@ -45,6 +48,7 @@ pub fn dispatch(cli: Cli) -> Result<()> {
         None => run::run(run::RunArgs::default_synthetic()),
         Some(Command::Run(a)) => run::run(a),
         Some(Command::Eval(e)) => eval::eval(e),
+        Some(Command::Densify(a)) => densify::densify(a),
         Some(Command::Synth(a)) => synth::synth(a),
         Some(Command::Features(a)) => features::features(a),
         Some(Command::Vocab(v)) => vocab::vocab(v),

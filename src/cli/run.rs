@@ -41,6 +41,10 @@ pub struct RunArgs {
     /// Use only the first N frames.
     #[arg(long)]
     frames: Option<usize>,
+    /// Also write each reconstructed keyframe's depth map to OUT/depth/<timestamp>.png
+    /// (16-bit, depth x 5000 in map units, 0 = no estimate).
+    #[arg(long)]
+    depth_maps: bool,
 }
 
 impl RunArgs {
@@ -54,6 +58,7 @@ impl RunArgs {
             config: None,
             deterministic: false,
             frames: None,
+            depth_maps: false,
         }
     }
 }
@@ -68,9 +73,10 @@ pub fn run(a: RunArgs) -> Result<()> {
         config.semidense.enabled = false;
     }
     io::prepare_output_dir(&a.out)?;
-    let opened = source::open(a.source.as_deref(), a.calib.as_deref(), a.frames)?;
+    let mut opened = source::open(a.source.as_deref(), a.calib.as_deref(), a.frames)?;
     let calib = opened.calibration.clone();
     let groundtruth = opened.groundtruth.clone();
+    let depth_truth = std::mem::replace(&mut opened.depth_truth, source::DepthTruth::None);
     // Ground truth beside the outputs, so `sdslam eval ate OUT/groundtruth.txt OUT/keyframes.txt`
     // works for every source that has it.
     if let Some(gt) = &opened.groundtruth {
@@ -186,8 +192,48 @@ pub fn run(a: RunArgs) -> Result<()> {
             report.keyframe_ate_rmse_m = Some(ate.rmse_m);
         }
     }
-    write_ply(&a.out.join("semidense.ply"), &[])?;
+    let cloud = system.semidense_cloud();
+    write_ply(&a.out.join("semidense.ply"), &cloud)?;
+    report.semidense_points = cloud.len();
+    if let Some(sd) = system.semidense() {
+        report.semidense_keyframes = sd.stats.keyframes_reconstructed;
+        report.semidense_skipped_keyframes = sd.stats.keyframes_skipped;
+        report.timing_ms.semidense_keyframe = sd.t_keyframe.percentiles();
+        report.timing_ms.semidense_depth = sd.t_depth.percentiles();
+        report.timing_ms.semidense_intra = sd.t_intra.percentiles();
+        report.timing_ms.semidense_inter = sd.t_inter.percentiles();
+        if a.depth_maps {
+            super::densify::write_depth_maps(&a.out, sd, info.width, info.height)?;
+        }
+        if let (Some(gt), false) = (&groundtruth, cloud.is_empty()) {
+            if let Some(ate) = sdslam::eval::ate(gt, &keyframes, 0.02, true) {
+                let stamps: Vec<f64> = sd.entries().iter().map(|e| e.timestamp).collect();
+                match depth_truth.load(&stamps, gt, info.width, info.height) {
+                    Ok(frames) if !frames.is_empty() => {
+                        report.semidense_accuracy = Some(sdslam::eval::cloud_accuracy(
+                            &cloud,
+                            &ate.alignment,
+                            &calib.camera,
+                            &frames,
+                        ));
+                    }
+                    Ok(_) => {}
+                    Err(e) => eprintln!("warning: semi-dense accuracy not evaluated: {e}"),
+                }
+            }
+        }
+    }
     write_json_atomic(&a.out.join("report.json"), &report)?;
+    if let Some(acc) = &report.semidense_accuracy {
+        eprintln!(
+            "sdslam: semi-dense {} points ({:.0} per keyframe): median relative depth error {:.2}%, {:.1}% within 2%, {:.2}% off by > 10%",
+            acc.points,
+            acc.points_per_keyframe,
+            acc.median_relative_error * 100.0,
+            acc.within_2pct * 100.0,
+            acc.outliers_10pct * 100.0
+        );
+    }
     eprintln!(
         "sdslam: {} frames ({} skipped), {} tracked, {} keyframes, {} points{}, {:.1} s; state {:?}; outputs in {}",
         report.frames,

@@ -18,6 +18,57 @@ pub struct OpenedSource {
     /// Ground truth (`T_wc` per frame) when the source has it: the synthetic sequence, or a
     /// TUM folder's `groundtruth.txt`.
     pub groundtruth: Option<Vec<TimedPose>>,
+    /// Where ground-truth depth comes from, to evaluate the semi-dense cloud.
+    pub depth_truth: DepthTruth,
+}
+
+/// Ground-truth depth of a source.
+pub enum DepthTruth {
+    None,
+    /// A TUM folder with `depth.txt` (metres x 5000).
+    TumFolder(std::path::PathBuf),
+    /// The built-in sequence: rendered exactly at the requested times.
+    Synthetic(SyntheticConfig),
+}
+
+impl DepthTruth {
+    /// Depth maps with their ground-truth poses, for keyframes at `timestamps`.
+    pub fn load(
+        &self,
+        timestamps: &[f64],
+        groundtruth: &[TimedPose],
+        width: u32,
+        height: u32,
+    ) -> Result<Vec<sdslam::eval::DepthFrame>> {
+        match self {
+            DepthTruth::None => Ok(Vec::new()),
+            DepthTruth::TumFolder(dir) => {
+                sdslam::io::load_tum_depth_frames(dir, groundtruth, width, height, 5000.0)
+            }
+            DepthTruth::Synthetic(cfg) => {
+                let seq = SyntheticSequence::new(cfg.clone());
+                let gt = seq.ground_truth();
+                let mut frame = sdslam::camera::Frame::new(cfg.width, cfg.height);
+                let mut out = Vec::with_capacity(timestamps.len());
+                for &t in timestamps {
+                    let i = ((t - cfg.t0) * cfg.fps).round();
+                    if !(i >= 0.0 && (i as usize) < cfg.frames) {
+                        continue;
+                    }
+                    let i = i as usize;
+                    let mut depth = vec![0.0f32; (cfg.width * cfg.height) as usize];
+                    seq.render_with_depth(i, &mut frame, &mut depth);
+                    out.push(sdslam::eval::DepthFrame {
+                        timestamp: gt[i].timestamp,
+                        t_wc: gt[i].t_wc,
+                        depth,
+                    });
+                }
+                out.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+                Ok(out)
+            }
+        }
+    }
 }
 
 /// Opens SOURCE: `synthetic` (or none), `v4l2:/dev/videoN`, a TUM folder, a EuRoC folder, or an
@@ -38,13 +89,14 @@ pub fn open(
                 Some(p) => load_calibration(p)?,
                 None => cfg.calibration(),
             };
-            let seq = SyntheticSequence::new(cfg);
+            let seq = SyntheticSequence::new(cfg.clone());
             let gt = seq.ground_truth();
             Ok(OpenedSource {
                 source: Box::new(seq),
                 calibration,
                 calibration_name: calib.map(|p| p.display().to_string()).unwrap_or_else(|| "built-in synthetic camera".into()),
                 groundtruth: Some(gt),
+                depth_truth: DepthTruth::Synthetic(cfg),
             })
         }
         Some(s) if s.starts_with("v4l2:") || s.starts_with("libcamera:") => Err(Error::Invalid(format!(
@@ -81,6 +133,11 @@ pub fn open(
                 calibration,
                 calibration_name: name,
                 groundtruth: gt,
+                depth_truth: if dir.join("depth.txt").is_file() {
+                    DepthTruth::TumFolder(dir.to_path_buf())
+                } else {
+                    DepthTruth::None
+                },
             })
         }
     }

@@ -1,6 +1,9 @@
-//! Evaluation: trajectory error (ATE after Sim3 alignment) by the project's protocol.
+//! Evaluation by the project's protocol: trajectory error (ATE after Sim3 alignment) and
+//! semi-dense cloud accuracy against ground-truth depth.
 
 mod ate;
+mod cloud;
 
 pub use crate::geometry::umeyama;
 pub use ate::{associate, ate, AteResult, TimedPose};
+pub use cloud::{cloud_accuracy, CloudAccuracy, DepthFrame};

@@ -42,3 +42,58 @@ pub fn write_depth_png(
 }
 
 use image::ImageEncoder;
+
+/// Reads a 16-bit depth PNG into metres (value / `factor`; 0 stays 0 = no depth).
+pub fn read_depth_png(path: &Path, factor: f32) -> Result<(u32, u32, Vec<f32>)> {
+    let img = image::open(path)
+        .map_err(|e| Error::Invalid(format!("{}: cannot read depth image: {e}", path.display())))?;
+    let (w, h) = (img.width(), img.height());
+    let px = img.into_luma16();
+    Ok((w, h, px.pixels().map(|p| p.0[0] as f32 / factor).collect()))
+}
+
+/// Loads a TUM folder's ground-truth depth maps (`depth.txt`, metres x `factor`) with the
+/// ground-truth pose nearest in time to each (within 20 ms; maps without a pose are left
+/// out). Sorted by time. Errors name the file (and line for the list).
+pub fn load_tum_depth_frames(
+    dir: &Path,
+    groundtruth: &[crate::eval::TimedPose],
+    width: u32,
+    height: u32,
+    factor: f32,
+) -> Result<Vec<crate::eval::DepthFrame>> {
+    let list = dir.join("depth.txt");
+    let text = std::fs::read_to_string(&list).map_err(|e| Error::io(&list, e))?;
+    let entries = sdslam_camera::list::parse_tum(&text, &list)?;
+    let mut frames = Vec::with_capacity(entries.len());
+    for e in entries {
+        let i = groundtruth.partition_point(|g| g.timestamp < e.timestamp);
+        let near = [i.checked_sub(1), Some(i)]
+            .into_iter()
+            .flatten()
+            .filter_map(|j| groundtruth.get(j))
+            .min_by(|a, b| {
+                (a.timestamp - e.timestamp)
+                    .abs()
+                    .total_cmp(&(b.timestamp - e.timestamp).abs())
+            });
+        let Some(g) = near.filter(|g| (g.timestamp - e.timestamp).abs() <= 0.02) else {
+            continue;
+        };
+        let path = dir.join(&e.file);
+        let (w, h, depth) = read_depth_png(&path, factor)?;
+        if (w, h) != (width, height) {
+            return Err(Error::Invalid(format!(
+                "{}: depth map is {w}x{h}, the calibration says {width}x{height}",
+                path.display()
+            )));
+        }
+        frames.push(crate::eval::DepthFrame {
+            timestamp: e.timestamp,
+            t_wc: g.t_wc,
+            depth,
+        });
+    }
+    frames.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+    Ok(frames)
+}

@@ -174,10 +174,18 @@ impl LocalMapper {
         let neighbours: Vec<KeyFrameId> = k1
             .best_covisibles(self.config.triangulation_neighbours)
             .collect();
+        self.triangulate_with(map, kf, &neighbours);
+    }
+
+    /// Triangulates new points between `kf` and each of `neighbours` (unmatched keypoints,
+    /// epipolar search, parallax/reprojection/scale checks), then updates `kf`'s connections.
+    /// Also used with keyframes chosen by time when poses are given (offline densification).
+    pub fn triangulate_with(&mut self, map: &mut Map, kf: KeyFrameId, neighbours: &[KeyFrameId]) {
+        let Some(k1) = map.keyframe(kf) else { return };
         let t1 = k1.t_cw;
         let c1 = t1.center();
         let mut created = Vec::new();
-        for n in neighbours {
+        for &n in neighbours {
             let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(n)) else {
                 continue;
             };
@@ -188,13 +196,13 @@ impl LocalMapper {
                 .filter_map(|(_, p)| map.point(p))
                 .map(|p| k2.t_cw.transform(&p.position).z)
                 .collect();
-            if depths.is_empty() {
-                continue;
-            }
-            let mut d = depths.clone();
-            d.sort_by(|a, b| a.total_cmp(b));
-            if baseline / d[d.len() / 2] < 0.01 {
-                continue;
+            // (A neighbour without points yet, as with given poses, is not checked.)
+            if !depths.is_empty() {
+                let mut d = depths.clone();
+                d.sort_by(|a, b| a.total_cmp(b));
+                if baseline / d[d.len() / 2] < 0.01 {
+                    continue;
+                }
             }
             let Some(f21) = fundamental_from_poses(&self.k, &t1, &self.k, &k2.t_cw) else {
                 continue;

@@ -1,6 +1,7 @@
 //! Runtime: stage timing, the run report, and (with the SLAM core) threads and deadlines.
 
 mod report;
+mod semidense_worker;
 mod system;
 mod timing;
 

@@ -46,5 +46,13 @@ pub struct Report {
     pub wall_time_s: f64,
     /// Why the run ended early, if it did (error or interruption); outputs are still written.
     pub stopped_early: Option<String>,
+    /// Keyframes reconstructed by semi-dense mapping, and those it skipped (culled before
+    /// their turn, too few neighbours, or its queue was full under overload).
+    pub semidense_keyframes: usize,
+    pub semidense_skipped_keyframes: usize,
+    /// Points in `semidense.ply`.
+    pub semidense_points: usize,
+    /// Cloud accuracy by the evaluation protocol, when the source has ground-truth depth.
+    pub semidense_accuracy: Option<crate::eval::CloudAccuracy>,
     pub timing_ms: TimingReport,
 }

@@ -17,7 +17,9 @@ use crate::geometry::{CameraFromWorld, Se3, WorldFromCamera};
 use crate::local_mapping::{median_depth, LocalMapper};
 use crate::map::{KeyFrameId, Map, MapConfig};
 use crate::optimize::{BaObservation, BaOptions, BaProblem, BundleAdjuster};
+use crate::runtime::semidense_worker::SemiDenseWorker;
 use crate::runtime::StageTimer;
+use crate::semidense::{Intrinsics, SemiDenseMapper};
 use crate::tracking::{InitAttempt, Initializer, TrackedFrame, Tracker, TrackingState};
 
 /// What happened to one frame.
@@ -71,6 +73,10 @@ pub struct System {
     map: Arc<Mutex<Map>>,
     pub tracker: Tracker,
     mapping: Mapping,
+    semidense: SemiDenseWorker,
+    /// Keyframes made while processing the current frame (told to semi-dense mapping after
+    /// the map is unlocked).
+    fresh_keyframes: heapless::Vec<KeyFrameId, 4>,
     init: Initializer,
     frame: TrackedFrame,
     trajectory: Vec<TrajectoryEntry>,
@@ -108,9 +114,34 @@ impl System {
         } else {
             Mapping::Inline(Box::new(LocalMapper::new(camera, &scales)))
         };
+        let semidense = if config.semidense.enabled {
+            let k = Intrinsics {
+                fx: camera.fx,
+                fy: camera.fy,
+                cx: camera.cx,
+                cy: camera.cy,
+            };
+            let mapper = Box::new(SemiDenseMapper::new(
+                k,
+                w,
+                h,
+                &config.semidense,
+                config.map.max_keyframes,
+                max_features,
+            ));
+            if threaded {
+                SemiDenseWorker::spawn(mapper, Arc::clone(&map))
+            } else {
+                SemiDenseWorker::Inline(mapper)
+            }
+        } else {
+            SemiDenseWorker::Off
+        };
         System {
             tracker: Tracker::new(camera, scales.clone(), max_features),
             mapping,
+            semidense,
+            fresh_keyframes: heapless::Vec::new(),
             init: Initializer::new(max_features, w, h),
             frame: TrackedFrame::new(max_features, w, h),
             trajectory: Vec::with_capacity(expected_frames),
@@ -147,21 +178,39 @@ impl System {
 
     /// Stops the mapping thread after it has processed every queued keyframe, and joins it.
     /// Returns false when the thread had panicked (the map is still usable).
+    /// Then reconstructs the keyframes still pending for semi-dense mapping and joins that
+    /// thread. Returns false when a thread had panicked (what it had not finished is lost; the
+    /// map and everything else are still usable).
     pub fn finish(&mut self) -> bool {
-        let Mapping::Thread { tx, handle, idle } = &mut self.mapping else {
-            return true;
-        };
-        tx.take();
-        let ok = match handle.take().map(|h| h.join()) {
-            Some(Ok(timer)) => {
-                self.stats.local_mapping = timer;
-                true
-            }
-            Some(Err(_)) => false,
-            None => true,
-        };
-        idle.store(true, Ordering::Release);
+        let mut ok = true;
+        if let Mapping::Thread { tx, handle, idle } = &mut self.mapping {
+            tx.take();
+            ok = match handle.take().map(|h| h.join()) {
+                Some(Ok(timer)) => {
+                    self.stats.local_mapping = timer;
+                    true
+                }
+                Some(Err(_)) => false,
+                None => true,
+            };
+            idle.store(true, Ordering::Release);
+        }
+        ok &= self.semidense.finish(&self.map);
         ok
+    }
+
+    /// Semi-dense results (after [`finish`](Self::finish), or inline mode at any time).
+    pub fn semidense(&self) -> Option<&SemiDenseMapper> {
+        self.semidense.mapper()
+    }
+
+    /// The semi-dense cloud in world coordinates with the current keyframe poses.
+    pub fn semidense_cloud(&self) -> Vec<crate::io::CloudPoint> {
+        let mut out = Vec::new();
+        if let Some(m) = self.semidense.mapper() {
+            m.cloud(&lock(&self.map), &mut out);
+        }
+        out
     }
 
     /// Tracks one undistorted frame (grey, optional RGB of the same size).
@@ -224,6 +273,11 @@ impl System {
             t_wc = Some(f.t_cw.inverse());
         }
         self.tracker.last.copy_from(&self.frame);
+        drop(map_guard);
+        // Semi-dense mapping hears of keyframes without the map locked (it locks briefly).
+        for kf in std::mem::take(&mut self.fresh_keyframes) {
+            self.semidense.keyframe(&map_arc, kf);
+        }
         FrameResult {
             state,
             t_wc,
@@ -233,6 +287,7 @@ impl System {
 
     fn reset(&mut self, map: &mut Map) {
         map.reset();
+        self.semidense.reset();
         self.tracker.state = TrackingState::NotInitialised;
         self.tracker.reference_kf = None;
         self.tracker.velocity = None;
@@ -324,6 +379,8 @@ impl System {
         self.tracker.velocity = None;
         self.tracker.state = TrackingState::Ok;
         self.stats.keyframes_created += 2;
+        let _ = self.fresh_keyframes.push(kf0);
+        let _ = self.fresh_keyframes.push(kf1);
         // Keyframe 0's pose enters the trajectory too.
         self.trajectory.push(TrajectoryEntry {
             timestamp: self.init.reference_timestamp,
@@ -475,6 +532,7 @@ impl System {
         self.tracker.reference_kf = Some(kf);
         self.tracker.last_keyframe_frame = self.frame.index;
         self.stats.keyframes_created += 1;
+        let _ = self.fresh_keyframes.push(kf);
         true
     }
 

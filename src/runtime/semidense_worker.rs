@@ -1,0 +1,127 @@
+//! Where semi-dense mapping runs: inline on the tracking thread (deterministic mode) or on its
+//! own thread fed by a bounded channel. The thread is the first to degrade under overload:
+//! when its queue is full, keyframes are not reconstructed (counted), tracking never waits.
+
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+
+use crossbeam_channel::{bounded, Sender, TrySendError};
+
+use crate::map::{KeyFrameId, Map};
+use crate::semidense::SemiDenseMapper;
+
+/// Keyframe notifications buffered for the semi-dense thread (about a minute of keyframes
+/// at typical rates; each message is a few bytes).
+const QUEUE_CAPACITY: usize = 64;
+
+pub(crate) enum Message {
+    KeyFrame(KeyFrameId),
+    /// The map was reset: drop everything reconstructed so far.
+    Reset,
+}
+
+pub(crate) enum SemiDenseWorker {
+    Off,
+    Inline(Box<SemiDenseMapper>),
+    Thread {
+        tx: Option<Sender<Message>>,
+        handle: Option<JoinHandle<Box<SemiDenseMapper>>>,
+        /// Keyframes not sent because the queue was full.
+        dropped: usize,
+    },
+    /// After [`finish`](SemiDenseWorker::finish): the mapper with every result.
+    Done(Box<SemiDenseMapper>),
+    /// The thread panicked: its results are lost, the rest of the run is not.
+    Failed,
+}
+
+impl SemiDenseWorker {
+    pub fn spawn(mut mapper: Box<SemiDenseMapper>, map: Arc<Mutex<Map>>) -> Self {
+        let (tx, rx) = bounded::<Message>(QUEUE_CAPACITY);
+        let handle = std::thread::Builder::new()
+            .name("semidense".into())
+            .spawn(move || {
+                while let Ok(m) = rx.recv() {
+                    match m {
+                        Message::KeyFrame(kf) => mapper.on_keyframe(&map, kf),
+                        Message::Reset => mapper.reset(),
+                    }
+                }
+                mapper.flush(&map);
+                mapper
+            });
+        match handle {
+            Ok(h) => SemiDenseWorker::Thread {
+                tx: Some(tx),
+                handle: Some(h),
+                dropped: 0,
+            },
+            Err(_) => SemiDenseWorker::Failed,
+        }
+    }
+
+    /// A keyframe was made (call without holding the map lock).
+    pub fn keyframe(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
+        match self {
+            SemiDenseWorker::Inline(m) => m.on_keyframe(map, kf),
+            SemiDenseWorker::Thread {
+                tx: Some(tx),
+                dropped,
+                ..
+            } => {
+                if let Err(TrySendError::Full(_)) = tx.try_send(Message::KeyFrame(kf)) {
+                    *dropped += 1;
+                }
+            }
+            _ => {}
+        }
+    }
+
+    pub fn reset(&mut self) {
+        match self {
+            SemiDenseWorker::Inline(m) => m.reset(),
+            SemiDenseWorker::Thread { tx: Some(tx), .. } => {
+                // Blocking: a reset must not be lost (it is rare and the queue drains).
+                let _ = tx.send(Message::Reset);
+            }
+            _ => {}
+        }
+    }
+
+    /// Reconstructs what is pending, joins the thread. False when the thread had panicked.
+    pub fn finish(&mut self, map: &Mutex<Map>) -> bool {
+        let state = std::mem::replace(self, SemiDenseWorker::Off);
+        let (next, ok) = match state {
+            SemiDenseWorker::Inline(mut m) => {
+                m.flush(map);
+                (SemiDenseWorker::Done(m), true)
+            }
+            SemiDenseWorker::Thread {
+                tx,
+                handle,
+                dropped,
+            } => {
+                drop(tx);
+                match handle.map(|h| h.join()) {
+                    Some(Ok(mut m)) => {
+                        m.stats.keyframes_skipped += dropped;
+                        (SemiDenseWorker::Done(m), true)
+                    }
+                    _ => (SemiDenseWorker::Failed, false),
+                }
+            }
+            SemiDenseWorker::Failed => (SemiDenseWorker::Failed, false),
+            other => (other, true),
+        };
+        *self = next;
+        ok
+    }
+
+    /// The mapper's results, once finished.
+    pub fn mapper(&self) -> Option<&SemiDenseMapper> {
+        match self {
+            SemiDenseWorker::Done(m) | SemiDenseWorker::Inline(m) => Some(m),
+            _ => None,
+        }
+    }
+}

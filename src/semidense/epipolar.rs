@@ -1,0 +1,330 @@
+//! Epipolar search of one reference pixel in one neighbour keyframe (paper section III-B):
+//! the segment between the prior's inverse-depth bounds (eq. 1), the three pixel conditions,
+//! the similarity error (eq. 2-3), sub-pixel refinement (eq. 4-6), its uncertainty (eq. 7) and
+//! the general inverse-depth propagation (eq. 8-9).
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::gradients::{
+    fast_atan2, quantise_orientation, GradientImage, PixelGradient, ORIENTATION_STEPS,
+};
+use crate::geometry::Se3;
+
+/// Pinhole intrinsics of the (undistorted) keyframe images.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Intrinsics {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl Intrinsics {
+    pub fn k(&self) -> Matrix3<f64> {
+        Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
+    }
+
+    /// The unit-depth ray `K^-1 x` through pixel (u, v).
+    #[inline]
+    pub fn ray(&self, u: f64, v: f64) -> Vector3<f64> {
+        Vector3::new((u - self.cx) / self.fx, (v - self.cy) / self.fy, 1.0)
+    }
+}
+
+/// Per-pixel thresholds of the search, derived once from the config.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SearchParams {
+    /// lambda_G: minimum gradient modulus of a candidate (and of a reference pixel).
+    pub lambda_g: f32,
+    /// cos(lambda_L): the gradient must be within lambda_L of the epipolar line (either way).
+    pub cos_lambda_l: f32,
+    /// cos(lambda_theta): the gradient orientation must agree with the reference's, rotated by
+    /// the in-plane rotation between the keyframes, within lambda_theta.
+    pub cos_lambda_theta: f32,
+    /// 1 / sigma_I^2.
+    pub inv_sigma_i2: f32,
+    /// 1 / theta (theta = sigma_G^2 / sigma_I^2).
+    pub inv_theta: f32,
+    /// sigma_I^2, for eq. 7.
+    pub sigma_i2: f32,
+    /// lambda_L and lambda_theta in orientation-code steps: an integer difference d passes
+    /// when d < these (the ceiling of the angle in steps).
+    pub lambda_l_steps: u8,
+    pub lambda_theta_steps: u8,
+    /// Largest similarity error e(u0) accepted as a match (chi-square, 2 dof).
+    pub max_error: f32,
+}
+
+impl SearchParams {
+    pub fn from_config(c: &crate::config::SemiDenseConfig) -> Self {
+        SearchParams {
+            lambda_g: c.lambda_g as f32,
+            cos_lambda_l: c.lambda_l_deg.to_radians().cos() as f32,
+            cos_lambda_theta: c.lambda_theta_deg.to_radians().cos() as f32,
+            inv_sigma_i2: (1.0 / (c.sigma_i * c.sigma_i)) as f32,
+            inv_theta: (1.0 / c.theta) as f32,
+            sigma_i2: (c.sigma_i * c.sigma_i) as f32,
+            lambda_l_steps: angle_steps(c.lambda_l_deg),
+            lambda_theta_steps: angle_steps(c.lambda_theta_deg),
+            max_error: c.max_similarity_error as f32,
+        }
+    }
+}
+
+fn angle_steps(deg: f64) -> u8 {
+    (deg / 360.0 * ORIENTATION_STEPS as f64)
+        .ceil()
+        .clamp(0.0, 255.0) as u8
+}
+
+/// Geometry of reference keyframe i seen from neighbour j, precomputed per pair.
+#[derive(Clone, Copy, Debug)]
+pub struct StereoPair {
+    /// K R_ji K^-1: a reference pixel at inverse depth rho maps to `kr x + rho kt` in j.
+    kr: Matrix3<f64>,
+    /// K t_ji.
+    kt: Vector3<f64>,
+    /// In-plane rotation from i to j (cos, sin), from the ORB matches.
+    rot: (f32, f32),
+}
+
+/// One inverse-depth hypothesis N(rho, sigma^2).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Hypothesis {
+    pub rho: f32,
+    pub sigma: f32,
+}
+
+impl StereoPair {
+    /// `t_ji` maps points from i's camera frame to j's; `delta_theta` (radians) is the median
+    /// ORB angle change from i to j.
+    pub fn new(k: &Intrinsics, t_ji: &Se3, delta_theta: f64) -> Self {
+        let km = k.k();
+        let kinv = Matrix3::new(
+            1.0 / k.fx,
+            0.0,
+            -k.cx / k.fx,
+            0.0,
+            1.0 / k.fy,
+            -k.cy / k.fy,
+            0.0,
+            0.0,
+            1.0,
+        );
+        let r = t_ji.rotation.to_rotation_matrix();
+        StereoPair {
+            kr: km * r.matrix() * kinv,
+            kt: km * t_ji.translation.vector,
+            rot: (delta_theta.cos() as f32, delta_theta.sin() as f32),
+        }
+    }
+
+    /// Searches reference pixel (x, y) with values `p` along its epipolar segment in `target`
+    /// for inverse depths in [rho_min, rho_max]. `None` when the segment leaves the image,
+    /// no candidate fulfils the pixel conditions, or the best match is poor or ill-posed.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub fn search(
+        &self,
+        params: &SearchParams,
+        x: f64,
+        y: f64,
+        p: &PixelGradient,
+        rho_range: (f64, f64),
+        target: &GradientImage,
+        samples: &mut u64,
+    ) -> Option<Hypothesis> {
+        let a = self.kr * Vector3::new(x, y, 1.0);
+        let b = self.kt;
+        let (mut lo, mut hi) = (rho_range.0.max(0.0), rho_range.1);
+        // Keep the depth in j positive over the whole interval: a.z + rho b.z > 0.
+        const MIN_Z: f64 = 1e-6;
+        if b.z.abs() < 1e-12 {
+            if a.z <= MIN_Z {
+                return None;
+            }
+        } else {
+            let rho0 = (MIN_Z - a.z) / b.z;
+            if b.z > 0.0 {
+                lo = lo.max(rho0);
+            } else {
+                hi = hi.min(rho0);
+            }
+        }
+        if hi <= lo {
+            return None;
+        }
+        let proj = |rho: f64| {
+            let h = a + b * rho;
+            (h.x / h.z, h.y / h.z)
+        };
+        let (p0, p1) = (proj(lo), proj(hi));
+        let (ex, ey) = (p1.0 - p0.0, p1.1 - p0.1);
+        let len = (ex * ex + ey * ey).sqrt();
+        if len < 1.0 || !len.is_finite() {
+            // No parallax over the prior: the match would not constrain the depth.
+            return None;
+        }
+        let (dx, dy) = (ex / len, ey / len);
+        let (s_lo, s_hi) = clip_segment(
+            p0,
+            (dx, dy),
+            len,
+            (2.0, (target.width - 3) as f64),
+            (2.0, (target.height - 3) as f64),
+        )?;
+        // Reference gradient direction rotated into j, and the line direction, as codes.
+        let (c, s) = self.rot;
+        let (rx, ry) = (p.gx * c - p.gy * s, p.gx * s + p.gy * c);
+        let a_ref = quantise_orientation(fast_atan2(ry, rx));
+        let a_line = quantise_orientation(fast_atan2(dy as f32, dx as f32));
+        // Step one pixel along the major axis (the paper's parametrisation by u_j, or by v_j
+        // for steep lines), starting on a whole pixel: every sample lies on a pixel column
+        // (row), interpolated linearly along the minor axis only.
+        let horizontal = dx.abs() >= dy.abs();
+        let w = target.width;
+        let (pm, pn, dm, dn, stride_m, stride_n) = if horizontal {
+            (p0.0, p0.1, dx, dy, 1usize, w)
+        } else {
+            (p0.1, p0.0, dy, dx, w, 1usize)
+        };
+        let sgn = dm.signum();
+        let (ma, mb) = (pm + dm * s_lo, pm + dm * s_hi);
+        let m0 = if sgn > 0.0 { ma.ceil() } else { ma.floor() };
+        let span = (mb - m0) * sgn;
+        if span < 0.0 {
+            return None;
+        }
+        let n = span.floor() as usize + 1;
+        let slope = dn / dm.abs(); // minor change per step
+        let minor0 = pn + dn * (m0 - pm) / dm;
+        const ONE: f64 = 65536.0;
+        let mut minor_f = (minor0 * ONE) as i64;
+        let minor_step = (slope * ONE) as i64;
+        let mut major = m0 as i64;
+        let major_step = sgn as i64;
+        let mut best = (f32::INFINITY, 0usize, 0.0f32, 0.0f32);
+        let codes = &target.codes[..];
+        let half = (ORIENTATION_STEPS / 2.0) as u8;
+        let (t3, t2) = (params.lambda_theta_steps, params.lambda_l_steps);
+        *samples += n as u64;
+        for k in 0..n {
+            let base = major as usize * stride_m;
+            let idx = base + ((minor_f + 32768) >> 16) as usize * stride_n;
+            let code = codes[idx];
+            let o = code >> 1;
+            // Condition 3: orientation within lambda_theta of the rotated reference.
+            let d3 = o.wrapping_sub(a_ref) & 127;
+            // Condition 2: gradient within lambda_L of the line, either direction.
+            let d2 = o.wrapping_sub(a_line) & (half - 1);
+            // Condition 1 (G > lambda_G) is the code's low bit. Evaluated without branches:
+            // about half the pixels of a textured image pass condition 1 alone.
+            let ok = (code & 1 != 0) & (d3.min(128 - d3) < t3) & (d2.min(half - d2) < t2);
+            if ok {
+                let i0 = base + (minor_f >> 16) as usize * stride_n;
+                let frac = (minor_f & 0xffff) as f32 * (1.0 / 65536.0);
+                let (i, g) = target.sample_between(i0, stride_n, frac);
+                let (ri, rg) = (p.intensity - i, p.modulus - g);
+                let e = (ri * ri + rg * rg * params.inv_theta) * params.inv_sigma_i2;
+                if e < best.0 {
+                    best = (e, k, ri, rg);
+                }
+            }
+            major += major_step;
+            minor_f += minor_step;
+        }
+        let (e, k, ri, rg) = best;
+        if e > params.max_error {
+            return None;
+        }
+        // Derivatives per step along the line (eq. 5) and the sub-pixel step (eq. 6).
+        let at = |kk: f64| {
+            let m = m0 + sgn * kk;
+            let mn = minor0 + slope * kk;
+            let (x, y) = if horizontal { (m, mn) } else { (mn, m) };
+            target.sample(x as f32, y as f32)
+        };
+        let (ip, gp) = at(k as f64 + 1.0);
+        let (im, gm) = at(k as f64 - 1.0);
+        let g = 0.5 * (ip - im);
+        let q = 0.5 * (gp - gm);
+        let denom = g * g + q * q * params.inv_theta;
+        if denom < 1e-6 {
+            return None;
+        }
+        let delta = (g * ri + q * rg * params.inv_theta) / denom;
+        if delta.abs() > 1.0 {
+            return None;
+        }
+        // Back to the line parameter s: one step moves 1 / |dm| along the line.
+        let step = 1.0 / dm.abs();
+        let s_k = (m0 + sgn * k as f64 - pm) / dm;
+        // Eq. 7 (in steps, then in line length).
+        let sigma_s = (2.0 * params.sigma_i2 / denom).sqrt() as f64 * step;
+        let s_star = s_k + delta as f64 * step;
+        // Eq. 8 in whichever image coordinate moves most along the line.
+        let rho_at = |s: f64| {
+            if dx.abs() >= dy.abs() {
+                let u = p0.0 + dx * s;
+                (a.x - u * a.z) / (u * b.z - b.x)
+            } else {
+                let v = p0.1 + dy * s;
+                (a.y - v * a.z) / (v * b.z - b.y)
+            }
+        };
+        let rho = rho_at(s_star);
+        if !(rho > 0.0 && rho.is_finite()) {
+            return None;
+        }
+        // Eq. 9.
+        let sigma = (rho_at(s_star + sigma_s) - rho)
+            .abs()
+            .max((rho_at(s_star - sigma_s) - rho).abs());
+        if !(sigma > 0.0 && sigma.is_finite()) {
+            return None;
+        }
+        Some(Hypothesis {
+            rho: rho as f32,
+            sigma: sigma as f32,
+        })
+    }
+}
+
+/// Clips the segment `p0 + s d`, s in [0, len], to the box (Liang-Barsky); `None` if outside.
+fn clip_segment(
+    p0: (f64, f64),
+    d: (f64, f64),
+    len: f64,
+    xr: (f64, f64),
+    yr: (f64, f64),
+) -> Option<(f64, f64)> {
+    let (mut lo, mut hi) = (0.0f64, len);
+    for (p, dd, (mn, mx)) in [(p0.0, d.0, xr), (p0.1, d.1, yr)] {
+        if dd.abs() < 1e-12 {
+            if p < mn || p > mx {
+                return None;
+            }
+            continue;
+        }
+        let (t1, t2) = ((mn - p) / dd, (mx - p) / dd);
+        let (a, b) = if t1 < t2 { (t1, t2) } else { (t2, t1) };
+        lo = lo.max(a);
+        hi = hi.min(b);
+    }
+    (hi >= lo).then_some((lo, hi))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clipping_keeps_the_inside_part() {
+        let r = clip_segment((-10.0, 5.0), (1.0, 0.0), 100.0, (0.0, 50.0), (0.0, 10.0));
+        assert_eq!(r, Some((10.0, 60.0)));
+        assert_eq!(
+            clip_segment((-10.0, 20.0), (1.0, 0.0), 100.0, (0.0, 50.0), (0.0, 10.0)),
+            None
+        );
+    }
+}

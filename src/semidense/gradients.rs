@@ -1,0 +1,207 @@
+//! Per-pixel intensity and Scharr gradient of a keyframe image, packed so that a sample along
+//! an epipolar line touches one cache line.
+
+/// Intensity, gradient modulus and gradient components of one pixel. Derivatives are Scharr
+/// (weights 3, 10, 3) normalised by 1/32, i.e. intensity units per pixel, the units of
+/// `lambda_G` and of the paper's `theta = 0.23`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C)]
+pub struct PixelGradient {
+    pub intensity: f32,
+    pub modulus: f32,
+    pub gx: f32,
+    pub gy: f32,
+}
+
+/// A keyframe image with its gradients; buffers are allocated once for the image size.
+/// Structure of arrays: the epipolar scan touches `codes` (1 byte per pixel) for every sample
+/// and `values` (intensity, modulus) only for candidates; `grad` is read for reference pixels.
+pub struct GradientImage {
+    pub width: usize,
+    pub height: usize,
+    /// (intensity, gradient modulus) per pixel.
+    pub values: Vec<[f32; 2]>,
+    /// (gx, gy) per pixel.
+    pub grad: Vec<[f32; 2]>,
+    /// Per pixel: 0 when the modulus is at most the threshold given to
+    /// [`compute`](Self::compute), else the gradient orientation quantised to 128 steps per
+    /// turn in the high 7 bits, low bit set.
+    pub codes: Vec<u8>,
+}
+
+/// Orientation steps per turn in [`GradientImage::codes`] (2.8 degrees each).
+pub const ORIENTATION_STEPS: f32 = 128.0;
+
+/// Encodes a strong gradient's orientation (see [`GradientImage::codes`]).
+#[inline]
+pub fn orientation_code(gx: f32, gy: f32) -> u8 {
+    (quantise_orientation(fast_atan2(gy, gx)) << 1) | 1
+}
+
+/// An angle (radians) in orientation steps, 0..128.
+#[inline]
+pub fn quantise_orientation(a: f32) -> u8 {
+    ((a * (ORIENTATION_STEPS / std::f32::consts::TAU)).round() as i32 & 127) as u8
+}
+
+/// atan2 with < 0.0015 rad error (a 3rd-order minimax polynomial on [0, 1]).
+#[inline]
+pub fn fast_atan2(y: f32, x: f32) -> f32 {
+    use std::f32::consts::{FRAC_PI_2, PI};
+    let (ax, ay) = (x.abs(), y.abs());
+    let (mn, mx) = if ax < ay { (ax, ay) } else { (ay, ax) };
+    if mx == 0.0 {
+        return 0.0;
+    }
+    let a = mn / mx;
+    let s = a * a;
+    let mut r = ((-0.046_496_473 * s + 0.159_314_22) * s - 0.327_622_77) * s * a + a;
+    if ay > ax {
+        r = FRAC_PI_2 - r;
+    }
+    if x < 0.0 {
+        r = PI - r;
+    }
+    if y < 0.0 {
+        -r
+    } else {
+        r
+    }
+}
+
+impl GradientImage {
+    pub fn new(width: usize, height: usize) -> Self {
+        GradientImage {
+            width,
+            height,
+            values: vec![[0.0; 2]; width * height],
+            grad: vec![[0.0; 2]; width * height],
+            codes: vec![0; width * height],
+        }
+    }
+
+    /// Recomputes from a grey image of this size (the 1-pixel border gets zero gradient);
+    /// `strong` is the modulus threshold of [`codes`](Self::codes). Does not allocate.
+    pub fn compute(&mut self, gray: &[u8], strong: f32) {
+        let (w, h) = (self.width, self.height);
+        debug_assert_eq!(gray.len(), w * h);
+        for (v, &g) in self.values.iter_mut().zip(gray) {
+            *v = [g as f32, 0.0];
+        }
+        self.grad.fill([0.0; 2]);
+        self.codes.fill(0);
+        if w < 3 || h < 3 {
+            return;
+        }
+        const NORM: f32 = 1.0 / 32.0;
+        for y in 1..h - 1 {
+            let (r0, r1, r2) = (
+                &gray[(y - 1) * w..y * w],
+                &gray[y * w..(y + 1) * w],
+                &gray[(y + 1) * w..(y + 2) * w],
+            );
+            for x in 1..w - 1 {
+                let v = |r: &[u8], i: usize| r[i] as i32;
+                let gx = 3 * (v(r0, x + 1) - v(r0, x - 1))
+                    + 10 * (v(r1, x + 1) - v(r1, x - 1))
+                    + 3 * (v(r2, x + 1) - v(r2, x - 1));
+                let gy = 3 * (v(r2, x - 1) - v(r0, x - 1))
+                    + 10 * (v(r2, x) - v(r0, x))
+                    + 3 * (v(r2, x + 1) - v(r0, x + 1));
+                let (gx, gy) = (gx as f32 * NORM, gy as f32 * NORM);
+                let i = y * w + x;
+                let m = (gx * gx + gy * gy).sqrt();
+                self.values[i][1] = m;
+                self.grad[i] = [gx, gy];
+                if m > strong {
+                    self.codes[i] = orientation_code(gx, gy);
+                }
+            }
+        }
+    }
+
+    /// Everything about pixel (x, y).
+    #[inline]
+    pub fn at(&self, x: usize, y: usize) -> PixelGradient {
+        let i = y * self.width + x;
+        let ([intensity, modulus], [gx, gy]) = (self.values[i], self.grad[i]);
+        PixelGradient {
+            intensity,
+            modulus,
+            gx,
+            gy,
+        }
+    }
+
+    /// Bilinear (intensity, modulus) at a sub-pixel position at least one pixel inside.
+    #[inline]
+    pub fn sample(&self, x: f32, y: f32) -> (f32, f32) {
+        let (x0, y0) = (x.floor(), y.floor());
+        let (ax, ay) = (x - x0, y - y0);
+        let i = y0 as usize * self.width + x0 as usize;
+        let p = &self.values;
+        let (a, b, c, d) = (p[i], p[i + 1], p[i + self.width], p[i + self.width + 1]);
+        let w00 = (1.0 - ax) * (1.0 - ay);
+        let w01 = ax * (1.0 - ay);
+        let w10 = (1.0 - ax) * ay;
+        let w11 = ax * ay;
+        (
+            w00 * a[0] + w01 * b[0] + w10 * c[0] + w11 * d[0],
+            w00 * a[1] + w01 * b[1] + w10 * c[1] + w11 * d[1],
+        )
+    }
+
+    /// Linear interpolation between pixel `i` and `i + stride` (a sample on a pixel row or
+    /// column), `frac` in [0, 1).
+    #[inline]
+    pub fn sample_between(&self, i: usize, stride: usize, frac: f32) -> (f32, f32) {
+        let (a, b) = (self.values[i], self.values[i + stride]);
+        (a[0] + (b[0] - a[0]) * frac, a[1] + (b[1] - a[1]) * frac)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ramp_has_its_slope_in_intensity_units_per_pixel() {
+        let (w, h) = (8, 6);
+        let gray: Vec<u8> = (0..w * h)
+            .map(|i| ((i % w) * 7 + (i / w) * 3) as u8)
+            .collect();
+        let mut g = GradientImage::new(w, h);
+        g.compute(&gray, 5.0);
+        let p = g.at(3, 2);
+        assert!(
+            (p.gx - 7.0).abs() < 1e-5 && (p.gy - 3.0).abs() < 1e-5,
+            "{p:?}"
+        );
+        assert!((p.modulus - (49.0f32 + 9.0).sqrt()).abs() < 1e-4);
+        assert_eq!(g.at(0, 0).modulus, 0.0);
+        assert_eq!(g.codes[0], 0);
+        assert_eq!(g.codes[2 * w + 3], orientation_code(7.0, 3.0));
+        let (i, m) = g.sample(3.5, 2.0);
+        assert!((i - (3.5 * 7.0 + 6.0)).abs() < 1e-4 && (m - p.modulus).abs() < 1e-4);
+    }
+
+    #[test]
+    fn fast_atan2_matches_std() {
+        for i in 0..3600 {
+            let a = (i as f32 / 10.0 - 180.0).to_radians();
+            let (y, x) = (a.sin() * 3.0, a.cos() * 3.0);
+            let d = (fast_atan2(y, x) - y.atan2(x)).abs();
+            assert!(
+                d < 0.0015 || (d - std::f32::consts::TAU).abs() < 0.0015,
+                "{a} {d}"
+            );
+        }
+    }
+
+    #[test]
+    fn scharr_noise_variance_ratio_is_theta() {
+        // theta = var(G-component) / var(I) for white noise: (2*(9+100+9))/32^2 = 0.2305.
+        let ratio = 2.0 * (9.0 + 100.0 + 9.0) / (32.0f64 * 32.0);
+        assert!((ratio - 0.23).abs() < 0.001);
+    }
+}

@@ -1,0 +1,390 @@
+//! Drives semi-dense reconstruction from the SLAM map: keyframes are reconstructed
+//! `keyframe_delay` keyframes after they were made (local BA has settled them and newer
+//! covisible keyframes exist), checked against their neighbours once those are reconstructed
+//! too, and turned into the cloud with the keyframe poses current at output time (so loop
+//! corrections move the cloud). Buffers are reserved at construction: after warm-up a
+//! keyframe allocates nothing.
+
+use std::collections::VecDeque;
+use std::sync::Mutex;
+use std::time::Instant;
+
+use super::{
+    median_rotation, prior_range, DepthPixel, InterChecker, Intrinsics, KeyframeReconstructor,
+    MAX_NEIGHBOURS,
+};
+use crate::config::SemiDenseConfig;
+use crate::geometry::CameraFromWorld;
+use crate::io::CloudPoint;
+use crate::map::{KeyFrameId, Map};
+use crate::runtime::StageTimer;
+
+/// A reconstructed keyframe: its pixels live in the mapper's arena at `start..start + len`.
+#[derive(Clone, Debug)]
+pub struct KeyframeDepth {
+    pub keyframe: KeyFrameId,
+    pub timestamp: f64,
+    /// Pose when last read from the map (kept if the keyframe is culled later).
+    pub t_cw: CameraFromWorld,
+    pub neighbours: heapless::Vec<KeyFrameId, MAX_NEIGHBOURS>,
+    start: usize,
+    len: usize,
+    /// The inter-keyframe check has run.
+    pub checked: bool,
+    /// Depth + intra time, milliseconds (inter is added when it runs).
+    elapsed_ms: f64,
+}
+
+/// A pixel of the arena: the intra-checked estimate (what neighbours are checked against),
+/// the final inverse depth after the inter-keyframe check (0 = rejected) and its colour.
+#[derive(Clone, Copy, Debug, Default)]
+struct CloudPixel {
+    raw: DepthPixel,
+    rho: f32,
+    rgb: [u8; 3],
+}
+
+/// Counters for the report.
+#[derive(Clone, Debug, Default)]
+pub struct SemiDenseStats {
+    pub keyframes_reconstructed: usize,
+    /// Keyframes not reconstructed: culled before their turn, too few neighbours, no depth
+    /// prior, or the store was full.
+    pub keyframes_skipped: usize,
+}
+
+pub struct SemiDenseMapper {
+    config: SemiDenseConfig,
+    reconstructor: KeyframeReconstructor,
+    inter: InterChecker,
+    pending: VecDeque<KeyFrameId>,
+    entries: Vec<KeyframeDepth>,
+    arena: Vec<CloudPixel>,
+    // Staging copies taken under the map lock, processed without it.
+    gray_ref: Vec<u8>,
+    rgb_ref: Vec<u8>,
+    gray_nb: Vec<Vec<u8>>,
+    scratch_f32: Vec<f32>,
+    scratch_pixels: Vec<DepthPixel>,
+    pub stats: SemiDenseStats,
+    pub t_depth: StageTimer,
+    pub t_intra: StageTimer,
+    pub t_inter: StageTimer,
+    pub t_keyframe: StageTimer,
+}
+
+impl SemiDenseMapper {
+    /// Reserves everything for `width` x `height` keyframes, `max_keyframes` reconstructed
+    /// keyframes and `max_points` stored pixels.
+    pub fn new(
+        k: Intrinsics,
+        width: usize,
+        height: usize,
+        config: &SemiDenseConfig,
+        max_keyframes: usize,
+        max_features: usize,
+    ) -> Self {
+        let reconstructor = KeyframeReconstructor::new(k, width, height, config);
+        let n = reconstructor.max_neighbours();
+        let timer = || StageTimer::with_capacity(max_keyframes.max(16));
+        SemiDenseMapper {
+            config: config.clone(),
+            inter: InterChecker::new(k, width, height, n),
+            reconstructor,
+            pending: VecDeque::with_capacity(config.keyframe_delay + 2),
+            entries: Vec::with_capacity(max_keyframes),
+            arena: Vec::with_capacity(config.max_points),
+            gray_ref: Vec::with_capacity(width * height),
+            rgb_ref: Vec::with_capacity(width * height * 3),
+            gray_nb: (0..n).map(|_| Vec::with_capacity(width * height)).collect(),
+            scratch_f32: Vec::with_capacity(max_features.max(64)),
+            scratch_pixels: Vec::with_capacity(width * height),
+            stats: SemiDenseStats::default(),
+            t_depth: timer(),
+            t_intra: timer(),
+            t_inter: timer(),
+            t_keyframe: timer(),
+        }
+    }
+
+    /// Forgets everything (the map was reset: old keyframes are in another frame).
+    pub fn reset(&mut self) {
+        self.pending.clear();
+        self.entries.clear();
+        self.arena.clear();
+    }
+
+    /// A keyframe was made. The keyframe `keyframe_delay` places earlier is reconstructed now.
+    pub fn on_keyframe(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
+        self.pending.push_back(kf);
+        while self.pending.len() > self.config.keyframe_delay {
+            if let Some(k) = self.pending.pop_front() {
+                self.reconstruct(map, k);
+                self.check_ready(map, false);
+            }
+        }
+    }
+
+    /// Reconstructs every pending keyframe and checks every keyframe with the neighbours it
+    /// has (end of the run).
+    pub fn flush(&mut self, map: &Mutex<Map>) {
+        while let Some(k) = self.pending.pop_front() {
+            self.reconstruct(map, k);
+            self.check_ready(map, false);
+        }
+        self.check_ready(map, true);
+    }
+
+    pub fn entries(&self) -> &[KeyframeDepth] {
+        &self.entries
+    }
+
+    /// Points that passed every check so far.
+    pub fn n_points(&self) -> usize {
+        self.entries
+            .iter()
+            .filter(|e| e.checked)
+            .map(|e| self.pixels(e).filter(|p| p.rho > 0.0).count())
+            .sum()
+    }
+
+    fn pixels<'a>(&'a self, e: &KeyframeDepth) -> impl Iterator<Item = &'a CloudPixel> + 'a {
+        self.arena[e.start..e.start + e.len].iter()
+    }
+
+    fn reconstruct(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
+        let t0 = Instant::now();
+        let Some((t_cw, timestamp, has_color, neighbours, rho_range)) = self.snapshot(map, kf)
+        else {
+            self.stats.keyframes_skipped += 1;
+            return;
+        };
+        let (w, h) = (self.reconstructor.width, self.reconstructor.height);
+        if self.entries.len() == self.entries.capacity()
+            || self.arena.len() + w * h > self.arena.capacity()
+        {
+            self.stats.keyframes_skipped += 1;
+            return;
+        }
+        self.reconstructor.set_reference(&self.gray_ref);
+        let times = {
+            // Neighbour poses were read under the lock with the reference's.
+            let r = &mut self.reconstructor;
+            for (k, (_, t_ji, dtheta)) in neighbours.iter().enumerate() {
+                r.add_neighbour(&self.gray_nb[k], t_ji, *dtheta);
+            }
+            r.reconstruct(rho_range)
+        };
+        self.reconstructor.export(&mut self.scratch_pixels);
+        let start = self.arena.len();
+        for p in &self.scratch_pixels {
+            let i = p.idx as usize;
+            let rgb = if has_color {
+                [
+                    self.rgb_ref[3 * i],
+                    self.rgb_ref[3 * i + 1],
+                    self.rgb_ref[3 * i + 2],
+                ]
+            } else {
+                [self.gray_ref[i]; 3]
+            };
+            self.arena.push(CloudPixel {
+                raw: *p,
+                rho: 0.0,
+                rgb,
+            });
+        }
+        let mut nb = heapless::Vec::new();
+        for (id, _, _) in &neighbours {
+            let _ = nb.push(*id);
+        }
+        self.entries.push(KeyframeDepth {
+            keyframe: kf,
+            timestamp,
+            t_cw,
+            neighbours: nb,
+            start,
+            len: self.arena.len() - start,
+            checked: false,
+            elapsed_ms: t0.elapsed().as_secs_f64() * 1e3,
+        });
+        self.t_depth.record(times.depth);
+        self.t_intra.record(times.intra);
+        if std::env::var_os("SDSLAM_SEMIDENSE_DEBUG").is_some() {
+            eprintln!(
+                "semidense kf {timestamp:.3}: range {rho_range:.3?} nb {} px {} samples {} ({:.0}/px/nb) depth {:.1} ms",
+                neighbours.len(),
+                times.searched_pixels,
+                times.samples,
+                times.samples as f64 / (times.searched_pixels.max(1) * neighbours.len() as u64) as f64,
+                times.depth.as_secs_f64() * 1e3
+            );
+        }
+        self.stats.keyframes_reconstructed += 1;
+    }
+
+    /// Copies what reconstruction needs out of the map (short lock): images, poses, the
+    /// neighbours with relative poses and in-plane rotations, and the inverse-depth prior.
+    #[allow(clippy::type_complexity)]
+    fn snapshot(
+        &mut self,
+        map: &Mutex<Map>,
+        kf: KeyFrameId,
+    ) -> Option<(
+        CameraFromWorld,
+        f64,
+        bool,
+        heapless::Vec<(KeyFrameId, crate::geometry::Se3, f64), MAX_NEIGHBOURS>,
+        (f64, f64),
+    )> {
+        let map = map.lock().unwrap_or_else(|e| e.into_inner());
+        let k = map.keyframe(kf)?;
+        if k.gray.len() != self.gray_ref.capacity() {
+            return None;
+        }
+        // Prior from the ORB map points' inverse depths in this keyframe.
+        self.scratch_f32.clear();
+        for (_, mp) in k.observed() {
+            if let Some(p) = map.point(mp) {
+                let z = k.t_cw.transform(&p.position).z;
+                if z > 0.0 && self.scratch_f32.len() < self.scratch_f32.capacity() {
+                    self.scratch_f32.push((1.0 / z) as f32);
+                }
+            }
+        }
+        let rho_range = prior_range(&self.scratch_f32)?;
+        let mut neighbours = heapless::Vec::new();
+        let max_n = self.reconstructor.max_neighbours();
+        let mut angles = std::mem::take(&mut self.scratch_f32);
+        for nb in k.best_covisibles(max_n) {
+            let Some(j) = map.keyframe(nb) else { continue };
+            if j.gray.len() != k.gray.len() {
+                continue;
+            }
+            let t_ji = j.t_cw.0 * k.t_cw.0.inverse();
+            let pairs = k.observed().filter_map(|(i, mp)| {
+                let p = map.point(mp)?;
+                let &(_, jj) = p.observations.iter().find(|(o, _)| *o == nb)?;
+                Some((k.keypoints[i].angle, j.keypoints.get(jj as usize)?.angle))
+            });
+            let dtheta = median_rotation(pairs, &mut angles);
+            let slot = neighbours.len();
+            self.gray_nb[slot].clear();
+            self.gray_nb[slot].extend_from_slice(&j.gray);
+            if neighbours.push((nb, t_ji, dtheta)).is_err() {
+                break;
+            }
+        }
+        self.scratch_f32 = angles;
+        if neighbours.len() < self.config.lambda_n {
+            return None;
+        }
+        self.gray_ref.clear();
+        self.gray_ref.extend_from_slice(&k.gray);
+        self.rgb_ref.clear();
+        if k.has_color {
+            self.rgb_ref.extend_from_slice(&k.rgb);
+        }
+        Some((k.t_cw, k.timestamp, k.has_color, neighbours, rho_range))
+    }
+
+    /// Runs the inter-keyframe check of every unchecked keyframe whose neighbours are all
+    /// reconstructed (or will never be); `force` checks all of them.
+    fn check_ready(&mut self, map: &Mutex<Map>, force: bool) {
+        for e in 0..self.entries.len() {
+            if self.entries[e].checked {
+                continue;
+            }
+            let ready = force
+                || self.entries[e]
+                    .neighbours
+                    .iter()
+                    .all(|n| !self.pending.contains(n));
+            if ready {
+                self.check(map, e);
+            }
+        }
+    }
+
+    /// Re-reads current poses of an entry and its neighbours from the map (loop closure and BA
+    /// move keyframes after reconstruction).
+    fn refresh_poses(&mut self, map: &Map, e: usize) {
+        let refresh = |d: &mut KeyframeDepth| {
+            if let Some(k) = map.keyframe(d.keyframe) {
+                d.t_cw = k.t_cw;
+            }
+        };
+        refresh(&mut self.entries[e]);
+        for n in self.entries[e].neighbours.clone() {
+            if let Some(d) = self.entries.iter_mut().find(|d| d.keyframe == n) {
+                refresh(d);
+            }
+        }
+    }
+
+    fn check(&mut self, map: &Mutex<Map>, e: usize) {
+        let t0 = Instant::now();
+        {
+            let m = map.lock().unwrap_or_else(|p| p.into_inner());
+            self.refresh_poses(&m, e);
+        }
+        self.inter.clear();
+        let me = &self.entries[e];
+        for n in &me.neighbours {
+            let Some(d) = self.entries.iter().find(|d| d.keyframe == *n) else {
+                continue;
+            };
+            let t_ji = d.t_cw.0 * me.t_cw.0.inverse();
+            let pixels = self.arena[d.start..d.start + d.len].iter().map(|p| p.raw);
+            self.inter.add_neighbour(pixels, &t_ji);
+        }
+        let (start, len) = (me.start, me.len);
+        let lambda_n = self.config.lambda_n;
+        let inter = &self.inter;
+        for p in &mut self.arena[start..start + len] {
+            p.rho = inter.check(p.raw.idx, p.raw.rho, lambda_n).unwrap_or(0.0);
+        }
+        let dt = t0.elapsed();
+        self.t_inter.record(dt);
+        let me = &mut self.entries[e];
+        me.checked = true;
+        me.elapsed_ms += dt.as_secs_f64() * 1e3;
+        self.t_keyframe.record_ms(me.elapsed_ms);
+    }
+
+    /// The cloud in world coordinates with the keyframe poses in `map` now (stored poses for
+    /// keyframes culled since). Appends to `out`.
+    pub fn cloud(&self, map: &Map, out: &mut Vec<CloudPoint>) {
+        let k = self.reconstructor.k;
+        let w = self.reconstructor.width;
+        for e in self.entries.iter().filter(|e| e.checked) {
+            let t_wc = map
+                .keyframe(e.keyframe)
+                .map_or(e.t_cw, |kf| kf.t_cw)
+                .inverse();
+            for p in self.pixels(e).filter(|p| p.rho > 0.0) {
+                let i = p.raw.idx as usize;
+                let x_c = k.ray((i % w) as f64, (i / w) as f64) / p.rho as f64;
+                let x_w = t_wc.transform(&x_c);
+                out.push(CloudPoint {
+                    position: [x_w.x as f32, x_w.y as f32, x_w.z as f32],
+                    rgb: p.rgb,
+                    sigma: p.raw.sigma,
+                    timestamp: e.timestamp,
+                });
+            }
+        }
+    }
+
+    /// Depth (z, metres of the map) of entry `e`'s accepted pixels into `out` (0 elsewhere).
+    pub fn depth_map(&self, e: usize, out: &mut [f32]) {
+        out.fill(0.0);
+        if let Some(d) = self.entries.get(e) {
+            for p in self.pixels(d).filter(|p| p.rho > 0.0) {
+                if let Some(o) = out.get_mut(p.raw.idx as usize) {
+                    *o = 1.0 / p.rho;
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,130 @@
+//! Offline densification from given poses (a refined trajectory or ground truth), as the
+//! paper suggests after full BA: every given keyframe gets ORB features; map points are
+//! triangulated between each keyframe and the previous N with the known poses, so shared
+//! points measure viewing overlap (the covisibility that picks neighbours), give the depth
+//! prior and the in-plane rotations; then the same [`SemiDenseMapper`] reconstructs them.
+
+use std::sync::Mutex;
+
+use crate::camera_model::PinholeRadtan;
+use crate::config::Config;
+use crate::features::{Features, OrbExtractor};
+use crate::geometry::WorldFromCamera;
+use crate::io::CloudPoint;
+use crate::local_mapping::LocalMapper;
+use crate::map::{KeyFrameId, Map, MapConfig};
+
+use super::{Intrinsics, SemiDenseMapper};
+
+pub struct Densifier {
+    extractor: OrbExtractor,
+    features: Features,
+    triangulator: LocalMapper,
+    map: Mutex<Map>,
+    keyframes: Vec<KeyFrameId>,
+    mapper: SemiDenseMapper,
+    n_neighbours: usize,
+}
+
+impl Densifier {
+    /// For undistorted images of `camera`'s size and at most `max_keyframes` keyframes.
+    pub fn new(camera: &PinholeRadtan, config: &Config, max_keyframes: usize) -> Self {
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let extractor = OrbExtractor::new(w, h, &config.orb);
+        let scales = extractor.pyramid().scales.clone();
+        let max_features = config.orb.n_features * 2;
+        let map = Map::new(MapConfig {
+            max_features,
+            width: w,
+            height: h,
+            scale_factor: config.orb.scale_factor,
+            n_levels: config.orb.n_levels,
+            max_keyframes: max_keyframes.max(2),
+            max_map_points: config.map.max_map_points,
+            ..MapConfig::default()
+        });
+        let k = Intrinsics {
+            fx: camera.fx,
+            fy: camera.fy,
+            cx: camera.cx,
+            cy: camera.cy,
+        };
+        Densifier {
+            features: Features::with_capacity(max_features),
+            extractor,
+            triangulator: LocalMapper::new(*camera, &scales),
+            map: Mutex::new(map),
+            keyframes: Vec::with_capacity(max_keyframes),
+            mapper: SemiDenseMapper::new(
+                k,
+                w,
+                h,
+                &config.semidense,
+                max_keyframes.max(2),
+                max_features,
+            ),
+            n_neighbours: config.semidense.n_neighbours,
+        }
+    }
+
+    /// Adds a keyframe (undistorted grey, optional RGB) with its pose. False when the map is
+    /// full.
+    pub fn add_keyframe(
+        &mut self,
+        gray: &[u8],
+        rgb: Option<&[u8]>,
+        timestamp: f64,
+        index: u64,
+        t_wc: &WorldFromCamera,
+    ) -> bool {
+        self.extractor.extract(gray, None, &mut self.features);
+        let map = self.map.get_mut().unwrap_or_else(|e| e.into_inner());
+        let f = &self.features;
+        let Ok(kf) = map.insert_keyframe(|k| {
+            k.keypoints.extend_from_slice(&f.keypoints);
+            k.descriptors.extend_from_slice(&f.descriptors);
+            k.frame_index = index;
+            k.timestamp = timestamp;
+            k.t_cw = t_wc.inverse();
+            k.gray.extend_from_slice(gray);
+            if let Some(c) = rgb {
+                k.rgb.extend_from_slice(c);
+                k.has_color = true;
+            }
+        }) else {
+            return false;
+        };
+        let start = self.keyframes.len().saturating_sub(self.n_neighbours);
+        let previous: Vec<KeyFrameId> = self.keyframes[start..].iter().rev().copied().collect();
+        self.triangulator.triangulate_with(map, kf, &previous);
+        for &p in &previous {
+            map.update_connections(p);
+        }
+        self.keyframes.push(kf);
+        true
+    }
+
+    /// Reconstructs every keyframe (neighbours by covisibility over all of them).
+    pub fn finish(&mut self) -> &SemiDenseMapper {
+        {
+            let map = self.map.get_mut().unwrap_or_else(|e| e.into_inner());
+            for &k in &self.keyframes {
+                map.update_connections(k);
+            }
+        }
+        for &k in &self.keyframes {
+            self.mapper.on_keyframe(&self.map, k);
+        }
+        self.mapper.flush(&self.map);
+        &self.mapper
+    }
+
+    pub fn mapper(&self) -> &SemiDenseMapper {
+        &self.mapper
+    }
+
+    pub fn cloud(&self, out: &mut Vec<CloudPoint>) {
+        let map = self.map.lock().unwrap_or_else(|e| e.into_inner());
+        self.mapper.cloud(&map, out);
+    }
+}

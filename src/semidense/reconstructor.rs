@@ -1,0 +1,246 @@
+//! Per-keyframe reconstruction on preallocated image-size buffers: gradients, epipolar search
+//! in the N neighbours with hypothesis fusion (stage "depth"), then intra-keyframe checking,
+//! smoothing and growing (stage "intra"). Rows are processed in parallel on a private rayon
+//! pool of `threads` workers.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+
+use super::epipolar::{Hypothesis, Intrinsics, SearchParams, StereoPair};
+use super::fusion::fuse;
+use super::gradients::GradientImage;
+use super::intra::check_smooth_grow_row;
+use super::DepthPixel;
+use crate::config::SemiDenseConfig;
+use crate::geometry::Se3;
+
+/// Most neighbours a keyframe is searched in (the paper uses N = 7).
+pub const MAX_NEIGHBOURS: usize = 16;
+
+/// Time spent in each stage of one keyframe.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StageTimes {
+    pub depth: Duration,
+    pub intra: Duration,
+    /// Reference pixels searched, and epipolar samples visited over all neighbours.
+    pub searched_pixels: u64,
+    pub samples: u64,
+}
+
+pub struct KeyframeReconstructor {
+    pub k: Intrinsics,
+    pub width: usize,
+    pub height: usize,
+    params: SearchParams,
+    lambda_n: usize,
+    reference: GradientImage,
+    neighbours: Vec<GradientImage>,
+    pairs: Vec<StereoPair>,
+    n_active: usize,
+    /// Fused map (eq. 11) and the intra-checked map; sigma^2 = 0 marks "no estimate".
+    raw_rho: Vec<f32>,
+    raw_s2: Vec<f32>,
+    rho: Vec<f32>,
+    s2: Vec<f32>,
+    pool: Option<rayon::ThreadPool>,
+}
+
+impl KeyframeReconstructor {
+    /// Allocates every buffer for `width` x `height` keyframes.
+    pub fn new(k: Intrinsics, width: usize, height: usize, config: &SemiDenseConfig) -> Self {
+        let n = config.n_neighbours.clamp(1, MAX_NEIGHBOURS);
+        let pool = (config.threads > 1)
+            .then(|| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(config.threads)
+                    .thread_name(|i| format!("semidense-{i}"))
+                    .build()
+                    .ok()
+            })
+            .flatten();
+        KeyframeReconstructor {
+            k,
+            width,
+            height,
+            params: SearchParams::from_config(config),
+            lambda_n: config.lambda_n,
+            reference: GradientImage::new(width, height),
+            neighbours: (0..n).map(|_| GradientImage::new(width, height)).collect(),
+            pairs: Vec::with_capacity(n),
+            n_active: 0,
+            raw_rho: vec![0.0; width * height],
+            raw_s2: vec![0.0; width * height],
+            rho: vec![0.0; width * height],
+            s2: vec![0.0; width * height],
+            pool,
+        }
+    }
+
+    pub fn max_neighbours(&self) -> usize {
+        self.neighbours.len()
+    }
+
+    /// Sets the keyframe to reconstruct (grey, undistorted) and forgets the neighbours.
+    pub fn set_reference(&mut self, gray: &[u8]) {
+        self.reference.compute(gray, self.params.lambda_g);
+        self.n_active = 0;
+        self.pairs.clear();
+    }
+
+    /// Adds a neighbour: its grey image, the transform from the reference camera to it, and
+    /// the in-plane rotation (radians) of image content from the reference to it. False when
+    /// the capacity is reached.
+    pub fn add_neighbour(&mut self, gray: &[u8], t_ji: &Se3, delta_theta: f64) -> bool {
+        if self.n_active == self.neighbours.len() {
+            return false;
+        }
+        self.neighbours[self.n_active].compute(gray, self.params.lambda_g);
+        self.pairs.push(StereoPair::new(&self.k, t_ji, delta_theta));
+        self.n_active += 1;
+        true
+    }
+
+    pub fn neighbours(&self) -> usize {
+        self.n_active
+    }
+
+    /// Reconstructs the reference keyframe for inverse depths in `rho_range`; the result is
+    /// read with [`export`](Self::export).
+    pub fn reconstruct(&mut self, rho_range: (f64, f64)) -> StageTimes {
+        let t0 = Instant::now();
+        let (w, h) = (self.width, self.height);
+        let ctx = DepthContext {
+            params: self.params,
+            lambda_n: self.lambda_n,
+            reference: &self.reference,
+            neighbours: &self.neighbours[..self.n_active],
+            pairs: &self.pairs,
+            rho_range,
+            pixels: AtomicU64::new(0),
+            samples: AtomicU64::new(0),
+        };
+        let depth_rows = |rows: (usize, (&mut [f32], &mut [f32]))| {
+            let (y, (r, s)) = rows;
+            ctx.row(y, w, h, r, s);
+        };
+        run_rows(
+            self.pool.as_ref(),
+            &mut self.raw_rho,
+            &mut self.raw_s2,
+            w,
+            depth_rows,
+        );
+        let t1 = Instant::now();
+        let (raw_rho, raw_s2, reference) = (&self.raw_rho, &self.raw_s2, &self.reference);
+        let lambda_g = self.params.lambda_g;
+        let intra_rows = |rows: (usize, (&mut [f32], &mut [f32]))| {
+            let (y, (r, s)) = rows;
+            let vals = &reference.values[y * w..(y + 1) * w];
+            check_smooth_grow_row(y, w, h, raw_rho, raw_s2, |x| vals[x][1] > lambda_g, r, s);
+        };
+        run_rows(
+            self.pool.as_ref(),
+            &mut self.rho,
+            &mut self.s2,
+            w,
+            intra_rows,
+        );
+        StageTimes {
+            depth: t1 - t0,
+            intra: t1.elapsed(),
+            searched_pixels: ctx.pixels.load(Ordering::Relaxed),
+            samples: ctx.samples.load(Ordering::Relaxed),
+        }
+    }
+
+    /// The reconstructed inverse-depth map as pixels with estimates (cleared first; no
+    /// allocation when `out` has the capacity of an image).
+    pub fn export(&self, out: &mut Vec<DepthPixel>) {
+        out.clear();
+        for (i, (&r, &s2)) in self.rho.iter().zip(&self.s2).enumerate() {
+            if s2 > 0.0 {
+                out.push(DepthPixel {
+                    idx: i as u32,
+                    rho: r,
+                    sigma: s2.sqrt(),
+                });
+            }
+        }
+    }
+
+    /// The fused map before the intra-keyframe step (for tests and diagnostics).
+    pub fn fused(&self) -> (&[f32], &[f32]) {
+        (&self.raw_rho, &self.raw_s2)
+    }
+}
+
+/// Runs `f` on every (row index, (row of a, row of b)), in parallel when a pool is given.
+fn run_rows<F>(pool: Option<&rayon::ThreadPool>, a: &mut [f32], b: &mut [f32], w: usize, f: F)
+where
+    F: Fn((usize, (&mut [f32], &mut [f32]))) + Sync + Send,
+{
+    match pool {
+        Some(p) => p.install(|| {
+            a.par_chunks_mut(w)
+                .zip(b.par_chunks_mut(w))
+                .enumerate()
+                .for_each(&f)
+        }),
+        None => a.chunks_mut(w).zip(b.chunks_mut(w)).enumerate().for_each(f),
+    }
+}
+
+/// What the depth stage reads, shared by the row workers.
+struct DepthContext<'a> {
+    params: SearchParams,
+    lambda_n: usize,
+    reference: &'a GradientImage,
+    neighbours: &'a [GradientImage],
+    pairs: &'a [StereoPair],
+    rho_range: (f64, f64),
+    pixels: AtomicU64,
+    samples: AtomicU64,
+}
+
+impl DepthContext<'_> {
+    fn row(&self, y: usize, w: usize, h: usize, out_rho: &mut [f32], out_s2: &mut [f32]) {
+        out_rho.fill(0.0);
+        out_s2.fill(0.0);
+        if y < 2 || y + 2 >= h {
+            return;
+        }
+        let row = &self.reference.values[y * w..(y + 1) * w];
+        let mut hyps = [Hypothesis::default(); MAX_NEIGHBOURS];
+        let (mut pixels, mut samples) = (0u64, 0u64);
+        for x in 2..w - 2 {
+            if row[x][1] <= self.params.lambda_g {
+                continue;
+            }
+            let p = &self.reference.at(x, y);
+            pixels += 1;
+            let mut n = 0;
+            for (pair, img) in self.pairs.iter().zip(self.neighbours) {
+                if let Some(hy) = pair.search(
+                    &self.params,
+                    x as f64,
+                    y as f64,
+                    p,
+                    self.rho_range,
+                    img,
+                    &mut samples,
+                ) {
+                    hyps[n] = hy;
+                    n += 1;
+                }
+            }
+            if let Some((r, s2)) = fuse(&hyps[..n], self.lambda_n) {
+                out_rho[x] = r;
+                out_s2[x] = s2;
+            }
+        }
+        self.pixels.fetch_add(pixels, Ordering::Relaxed);
+        self.samples.fetch_add(samples, Ordering::Relaxed);
+    }
+}
