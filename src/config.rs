@@ -66,6 +66,12 @@ pub struct SemiDenseConfig {
     /// keeps the best pixel whatever its error. 5.99 is the 95% chi-square bound of eq. 3's
     /// two normalised residuals.
     pub max_similarity_error: f64,
+    /// Smallest baseline of a neighbour, as a fraction of the keyframe's mean scene depth
+    /// (from its prior). Not in the paper, which relies on keyframes being wide-baseline:
+    /// near-duplicate keyframes give wide hypotheses compatible with wrong ones.
+    pub min_baseline_ratio: f64,
+    /// Nice value added to the semi-dense threads (Linux), so tracking always wins a core.
+    pub nice: i32,
     /// Capacity of the stored semi-dense pixels over the run (a full store skips keyframes,
     /// counted in the report).
     pub max_points: usize,
@@ -85,6 +91,8 @@ impl Default for SemiDenseConfig {
             keyframe_delay: 10,
             threads: 2,
             max_similarity_error: 5.99,
+            nice: 10,
+            min_baseline_ratio: 0.05,
             max_points: 8_000_000,
         }
     }

@@ -1,17 +1,43 @@
-//! `sdslam eval`: trajectory accuracy by the project's protocol.
+//! `sdslam eval`: trajectory and semi-dense accuracy by the project's protocol.
 
 use std::path::PathBuf;
 
 use clap::{Args, Subcommand};
 
-use sdslam::eval::ate;
-use sdslam::io::read_tum_trajectory;
+use sdslam::eval::{ate, cloud_accuracy};
+use sdslam::io::{decode_ply, load_calibration, load_tum_depth_frames, read_tum_trajectory};
 use sdslam::{Error, Result};
 
 #[derive(Subcommand, Debug)]
 pub enum EvalCommand {
     /// Absolute trajectory error after Sim3 (Umeyama) alignment, poses matched by timestamp.
     Ate(AteArgs),
+    /// Semi-dense cloud accuracy against a TUM folder's ground-truth depth: the cloud is
+    /// aligned with the keyframe trajectory's Sim3, each point compared with the best of the
+    /// 3x3 ground-truth depths around its projection in the depth map nearest its keyframe.
+    Cloud(CloudArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct CloudArgs {
+    /// Output folder of `sdslam run` or `sdslam densify` (semidense.ply, keyframes.txt).
+    run: PathBuf,
+    /// TUM folder with groundtruth.txt, depth.txt and camera.yaml.
+    #[arg(long)]
+    gt: PathBuf,
+    /// Keyframe trajectory used for the alignment (default RUN/keyframes.txt; for densify
+    /// from ground truth, pass the poses given).
+    #[arg(long)]
+    keyframes: Option<PathBuf>,
+    /// Evaluate only points whose inverse-depth sigma is below this fraction of their
+    /// inverse depth (explores a variance threshold).
+    #[arg(long)]
+    max_rel_sigma: Option<f64>,
+    /// Also print the figures of each keyframe's points.
+    #[arg(long)]
+    per_keyframe: bool,
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Args, Debug)]
@@ -59,5 +85,80 @@ pub fn eval(cmd: EvalCommand) -> Result<()> {
             }
             Ok(())
         }
+        EvalCommand::Cloud(a) => cloud(a),
     }
+}
+
+fn cloud(a: CloudArgs) -> Result<()> {
+    let gt = read_tum_trajectory(&a.gt.join("groundtruth.txt"))?;
+    let kf_path = a.keyframes.unwrap_or_else(|| a.run.join("keyframes.txt"));
+    let est = read_tum_trajectory(&kf_path)?;
+    let ply_path = a.run.join("semidense.ply");
+    let bytes = std::fs::read(&ply_path).map_err(|e| Error::io(&ply_path, e))?;
+    let mut points = decode_ply(&bytes, &ply_path)?;
+    let calib = load_calibration(&a.gt.join("camera.yaml"))?;
+    let cam = &calib.camera;
+    let align = ate(&gt, &est, 0.02, true).ok_or_else(|| {
+        Error::Invalid(format!(
+            "{}: fewer than 3 keyframes match the ground truth",
+            kf_path.display()
+        ))
+    })?;
+    if let Some(max) = a.max_rel_sigma {
+        // sigma is of the inverse depth: relative to rho = 1 / depth along the optical axis,
+        // which needs the keyframe pose; use the distance to the keyframe centre instead.
+        let centres: Vec<(f64, nalgebra::Vector3<f64>)> = est
+            .iter()
+            .map(|p| (p.timestamp, p.t_wc.position()))
+            .collect();
+        points.retain(|p| {
+            let i = centres.partition_point(|c| c.0 < p.timestamp - 1e-6);
+            let Some((_, c)) = centres.get(i) else {
+                return false;
+            };
+            let d = (nalgebra::Vector3::new(
+                p.position[0] as f64,
+                p.position[1] as f64,
+                p.position[2] as f64,
+            ) - c)
+                .norm();
+            (p.sigma as f64) * d < max
+        });
+    }
+    let frames = load_tum_depth_frames(&a.gt, &gt, cam.width, cam.height, 5000.0)?;
+    let r = cloud_accuracy(&points, &align.alignment, cam, &frames);
+    if a.per_keyframe {
+        let mut start = 0;
+        while start < points.len() {
+            let t = points[start].timestamp;
+            let end = start + points[start..].partition_point(|p| p.timestamp == t);
+            let k = cloud_accuracy(&points[start..end], &align.alignment, cam, &frames);
+            println!(
+                "keyframe {t:.6}: {:6} points, median {:.3}%, within 2% {:.1}%, beyond 10% {:.2}%",
+                k.points,
+                k.median_relative_error * 100.0,
+                k.within_2pct * 100.0,
+                k.outliers_10pct * 100.0
+            );
+            start = end;
+        }
+    }
+    if a.json {
+        println!(
+            "{}",
+            serde_json::to_string(&r).map_err(|e| Error::Invalid(e.to_string()))?
+        );
+    } else {
+        println!(
+            "points     {} ({} evaluated, {} keyframes, {:.0} per keyframe)",
+            r.points, r.evaluated, r.keyframes, r.points_per_keyframe
+        );
+        println!(
+            "median relative depth error {:.3}%",
+            r.median_relative_error * 100.0
+        );
+        println!("within 2%  {:.2}%", r.within_2pct * 100.0);
+        println!("beyond 10% {:.3}% (outliers)", r.outliers_10pct * 100.0);
+    }
+    Ok(())
 }

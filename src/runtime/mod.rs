@@ -1,10 +1,12 @@
 //! Runtime: stage timing, the run report, and (with the SLAM core) threads and deadlines.
 
+mod priority;
 mod report;
 mod semidense_worker;
 mod system;
 mod timing;
 
+pub use priority::lower_current_thread_priority;
 pub use report::{Report, TimingReport};
 pub use system::{FrameResult, System, SystemStats};
 pub use timing::{Percentiles, StageTimer};

@@ -36,11 +36,12 @@ pub(crate) enum SemiDenseWorker {
 }
 
 impl SemiDenseWorker {
-    pub fn spawn(mut mapper: Box<SemiDenseMapper>, map: Arc<Mutex<Map>>) -> Self {
+    pub fn spawn(mut mapper: Box<SemiDenseMapper>, map: Arc<Mutex<Map>>, nice: i32) -> Self {
         let (tx, rx) = bounded::<Message>(QUEUE_CAPACITY);
         let handle = std::thread::Builder::new()
             .name("semidense".into())
             .spawn(move || {
+                super::lower_current_thread_priority(nice);
                 while let Ok(m) = rx.recv() {
                     match m {
                         Message::KeyFrame(kf) => mapper.on_keyframe(&map, kf),

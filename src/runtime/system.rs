@@ -130,7 +130,7 @@ impl System {
                 max_features,
             ));
             if threaded {
-                SemiDenseWorker::spawn(mapper, Arc::clone(&map))
+                SemiDenseWorker::spawn(mapper, Arc::clone(&map), config.semidense.nice)
             } else {
                 SemiDenseWorker::Inline(mapper)
             }

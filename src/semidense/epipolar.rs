@@ -8,6 +8,7 @@ use nalgebra::{Matrix3, Vector3};
 use super::gradients::{
     fast_atan2, quantise_orientation, GradientImage, PixelGradient, ORIENTATION_STEPS,
 };
+use super::scan::{scan, Probe, Walk};
 use crate::geometry::Se3;
 
 /// Pinhole intrinsics of the (undistorted) keyframe images.
@@ -183,10 +184,11 @@ impl StereoPair {
         // (row), interpolated linearly along the minor axis only.
         let horizontal = dx.abs() >= dy.abs();
         let w = target.width;
-        let (pm, pn, dm, dn, stride_m, stride_n) = if horizontal {
-            (p0.0, p0.1, dx, dy, 1usize, w)
+        // Steep lines walk the transposed words, so consecutive samples are adjacent words.
+        let (pm, pn, dm, dn, stride_n, words) = if horizontal {
+            (p0.0, p0.1, dx, dy, w, &target.packed[..])
         } else {
-            (p0.1, p0.0, dy, dx, w, 1usize)
+            (p0.1, p0.0, dy, dx, target.height, &target.packed_t[..])
         };
         let sgn = dm.signum();
         let (ma, mb) = (pm + dm * s_lo, pm + dm * s_hi);
@@ -199,40 +201,23 @@ impl StereoPair {
         let slope = dn / dm.abs(); // minor change per step
         let minor0 = pn + dn * (m0 - pm) / dm;
         const ONE: f64 = 65536.0;
-        let mut minor_f = (minor0 * ONE) as i64;
-        let minor_step = (slope * ONE) as i64;
-        let mut major = m0 as i64;
-        let major_step = sgn as i64;
-        let mut best = (f32::INFINITY, 0usize, 0.0f32, 0.0f32);
-        let codes = &target.codes[..];
-        let half = (ORIENTATION_STEPS / 2.0) as u8;
-        let (t3, t2) = (params.lambda_theta_steps, params.lambda_l_steps);
+        let walk = Walk {
+            major0: m0 as i32,
+            major_step: sgn as i32,
+            minor0: (minor0 * ONE) as i32,
+            minor_step: (slope * ONE) as i32,
+            stride_n,
+            n,
+        };
+        let probe = Probe {
+            intensity: p.intensity,
+            modulus: p.modulus,
+            a_ref,
+            a_line,
+        };
         *samples += n as u64;
-        for k in 0..n {
-            let base = major as usize * stride_m;
-            let idx = base + ((minor_f + 32768) >> 16) as usize * stride_n;
-            let code = codes[idx];
-            let o = code >> 1;
-            // Condition 3: orientation within lambda_theta of the rotated reference.
-            let d3 = o.wrapping_sub(a_ref) & 127;
-            // Condition 2: gradient within lambda_L of the line, either direction.
-            let d2 = o.wrapping_sub(a_line) & (half - 1);
-            // Condition 1 (G > lambda_G) is the code's low bit. Evaluated without branches:
-            // about half the pixels of a textured image pass condition 1 alone.
-            let ok = (code & 1 != 0) & (d3.min(128 - d3) < t3) & (d2.min(half - d2) < t2);
-            if ok {
-                let i0 = base + (minor_f >> 16) as usize * stride_n;
-                let frac = (minor_f & 0xffff) as f32 * (1.0 / 65536.0);
-                let (i, g) = target.sample_between(i0, stride_n, frac);
-                let (ri, rg) = (p.intensity - i, p.modulus - g);
-                let e = (ri * ri + rg * rg * params.inv_theta) * params.inv_sigma_i2;
-                if e < best.0 {
-                    best = (e, k, ri, rg);
-                }
-            }
-            major += major_step;
-            minor_f += minor_step;
-        }
+        let best = scan(&walk, &probe, params, words);
+        let best = (best.e, best.k, best.ri, best.rg);
         let (e, k, ri, rg) = best;
         if e > params.max_error {
             return None;

@@ -14,8 +14,8 @@ pub struct PixelGradient {
 }
 
 /// A keyframe image with its gradients; buffers are allocated once for the image size.
-/// Structure of arrays: the epipolar scan touches `codes` (1 byte per pixel) for every sample
-/// and `values` (intensity, modulus) only for candidates; `grad` is read for reference pixels.
+/// The epipolar scan reads `packed` (one word per pixel); `values` and `grad` serve the
+/// reference pixels and the sub-pixel step.
 pub struct GradientImage {
     pub width: usize,
     pub height: usize,
@@ -23,16 +23,34 @@ pub struct GradientImage {
     pub values: Vec<[f32; 2]>,
     /// (gx, gy) per pixel.
     pub grad: Vec<[f32; 2]>,
-    /// Per pixel: 0 when the modulus is at most the threshold given to
-    /// [`compute`](Self::compute), else the gradient orientation quantised to 128 steps per
-    /// turn in the high 7 bits, low bit set.
-    pub codes: Vec<u8>,
+    /// Per pixel, what the epipolar scan reads in one 4-byte load: bits 0-7 the code (0 when
+    /// the modulus is at most the threshold given to [`compute`](Self::compute), else the
+    /// gradient orientation quantised to 128 steps per turn in bits 1-7 and bit 0 set), bits
+    /// 8-15 the intensity, bits 16-31 the modulus in 1/256 intensity units. Followed by one
+    /// zero word of padding.
+    pub packed: Vec<u32>,
+    /// `packed` transposed (index x * height + y), so that walks along steep lines read
+    /// consecutive words too.
+    pub packed_t: Vec<u32>,
 }
 
-/// Orientation steps per turn in [`GradientImage::codes`] (2.8 degrees each).
+/// Modulus fixed-point scale in [`GradientImage::packed`].
+pub const MODULUS_SCALE: f32 = 256.0;
+
+/// Decodes (code, intensity, modulus) from a packed word.
+#[inline]
+pub fn unpack(v: u32) -> (u8, f32, f32) {
+    (
+        (v & 255) as u8,
+        ((v >> 8) & 255) as f32,
+        (v >> 16) as f32 * (1.0 / MODULUS_SCALE),
+    )
+}
+
+/// Orientation steps per turn in [`GradientImage::packed`] codes (2.8 degrees each).
 pub const ORIENTATION_STEPS: f32 = 128.0;
 
-/// Encodes a strong gradient's orientation (see [`GradientImage::codes`]).
+/// Encodes a strong gradient's orientation (see [`GradientImage::packed`]).
 #[inline]
 pub fn orientation_code(gx: f32, gy: f32) -> u8 {
     (quantise_orientation(fast_atan2(gy, gx)) << 1) | 1
@@ -76,12 +94,13 @@ impl GradientImage {
             height,
             values: vec![[0.0; 2]; width * height],
             grad: vec![[0.0; 2]; width * height],
-            codes: vec![0; width * height],
+            packed: vec![0; width * height + 1],
+            packed_t: vec![0; width * height + 1],
         }
     }
 
     /// Recomputes from a grey image of this size (the 1-pixel border gets zero gradient);
-    /// `strong` is the modulus threshold of [`codes`](Self::codes). Does not allocate.
+    /// `strong` is the modulus threshold of the codes in [`packed`](Self::packed). Does not allocate.
     pub fn compute(&mut self, gray: &[u8], strong: f32) {
         let (w, h) = (self.width, self.height);
         debug_assert_eq!(gray.len(), w * h);
@@ -89,7 +108,10 @@ impl GradientImage {
             *v = [g as f32, 0.0];
         }
         self.grad.fill([0.0; 2]);
-        self.codes.fill(0);
+        self.packed.fill(0);
+        for (p, &g) in self.packed.iter_mut().zip(gray) {
+            *p = (g as u32) << 8;
+        }
         if w < 3 || h < 3 {
             return;
         }
@@ -113,8 +135,23 @@ impl GradientImage {
                 let m = (gx * gx + gy * gy).sqrt();
                 self.values[i][1] = m;
                 self.grad[i] = [gx, gy];
-                if m > strong {
-                    self.codes[i] = orientation_code(gx, gy);
+                let code = if m > strong {
+                    orientation_code(gx, gy) as u32
+                } else {
+                    0
+                };
+                let mq = (m * MODULUS_SCALE).round().min(65535.0) as u32;
+                self.packed[i] = code | ((gray[i] as u32) << 8) | (mq << 16);
+            }
+        }
+        // Blocked transpose (cache-friendly both ways).
+        const B: usize = 32;
+        for y0 in (0..h).step_by(B) {
+            for x0 in (0..w).step_by(B) {
+                for y in y0..(y0 + B).min(h) {
+                    for x in x0..(x0 + B).min(w) {
+                        self.packed_t[x * h + y] = self.packed[y * w + x];
+                    }
                 }
             }
         }
@@ -179,8 +216,11 @@ mod tests {
         );
         assert!((p.modulus - (49.0f32 + 9.0).sqrt()).abs() < 1e-4);
         assert_eq!(g.at(0, 0).modulus, 0.0);
-        assert_eq!(g.codes[0], 0);
-        assert_eq!(g.codes[2 * w + 3], orientation_code(7.0, 3.0));
+        assert_eq!(g.packed[0] & 255, 0);
+        let (code, i, m) = unpack(g.packed[2 * w + 3]);
+        assert_eq!(code, orientation_code(7.0, 3.0));
+        assert_eq!(i, gray[2 * w + 3] as f32);
+        assert!((m - p.modulus).abs() < 1.0 / 256.0);
         let (i, m) = g.sample(3.5, 2.0);
         assert!((i - (3.5 * 7.0 + 6.0)).abs() < 1e-4 && (m - p.modulus).abs() < 1e-4);
     }

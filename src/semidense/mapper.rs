@@ -256,12 +256,20 @@ impl SemiDenseMapper {
         let mut neighbours = heapless::Vec::new();
         let max_n = self.reconstructor.max_neighbours();
         let mut angles = std::mem::take(&mut self.scratch_f32);
-        for nb in k.best_covisibles(max_n) {
+        let mean_rho = 0.5 * (rho_range.0 + rho_range.1);
+        let min_baseline = self.config.min_baseline_ratio / mean_rho.max(1e-9);
+        for nb in k.best_covisibles(4 * max_n) {
+            if neighbours.len() == max_n {
+                break;
+            }
             let Some(j) = map.keyframe(nb) else { continue };
             if j.gray.len() != k.gray.len() {
                 continue;
             }
             let t_ji = j.t_cw.0 * k.t_cw.0.inverse();
+            if t_ji.translation.vector.norm() < min_baseline {
+                continue;
+            }
             let pairs = k.observed().filter_map(|(i, mp)| {
                 let p = map.point(mp)?;
                 let &(_, jj) = p.observations.iter().find(|(o, _)| *o == nb)?;

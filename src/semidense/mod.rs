@@ -15,6 +15,7 @@ mod intra;
 mod mapper;
 mod offline;
 mod reconstructor;
+mod scan;
 
 pub use epipolar::{Hypothesis, Intrinsics, SearchParams, StereoPair};
 pub use fusion::{compatible, fuse, CHI2_1DOF_95, CHI2_2DOF_95};
@@ -56,9 +57,9 @@ pub fn median_rotation(pairs: impl Iterator<Item = (f32, f32)>, scratch: &mut Ve
 }
 
 /// The inverse-depth prior N(rho_0, sigma_rho0^2) of a keyframe from its map points' inverse
-/// depths (mean and standard deviation), as the search range [rho_0 - 2 sigma, rho_0 + 2 sigma]
-/// (section III-A; the lower bound is clamped at 0, the point at infinity). `None` with fewer
-/// than 10 points.
+/// depths (their mean and standard deviation), as the search range [rho_0 - 2 sigma_rho0,
+/// rho_0 + 2 sigma_rho0] (section III-A; the lower bound is clamped at 0, the point at
+/// infinity). `None` with fewer than 10 points.
 pub fn prior_range(inverse_depths: &[f32]) -> Option<(f64, f64)> {
     if inverse_depths.len() < 10 {
         return None;
@@ -71,7 +72,7 @@ pub fn prior_range(inverse_depths: &[f32]) -> Option<(f64, f64)> {
         .sum::<f64>()
         / (n - 1.0);
     let sigma = var.sqrt();
-    Some(((mean - 2.0 * sigma).max(0.0), mean + 2.0 * sigma))
+    (sigma > 0.0).then_some(((mean - 2.0 * sigma).max(0.0), mean + 2.0 * sigma))
 }
 
 #[cfg(test)]

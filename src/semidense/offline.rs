@@ -104,14 +104,26 @@ impl Densifier {
         true
     }
 
+    /// Updates every keyframe's covisibility (after the last keyframe is added).
+    pub fn connect(&mut self) {
+        let map = self.map.get_mut().unwrap_or_else(|e| e.into_inner());
+        for &k in &self.keyframes {
+            map.update_connections(k);
+        }
+    }
+
+    /// The keyframe map built from the given poses.
+    pub fn map(&self) -> &Mutex<Map> {
+        &self.map
+    }
+
+    pub fn keyframes(&self) -> &[KeyFrameId] {
+        &self.keyframes
+    }
+
     /// Reconstructs every keyframe (neighbours by covisibility over all of them).
     pub fn finish(&mut self) -> &SemiDenseMapper {
-        {
-            let map = self.map.get_mut().unwrap_or_else(|e| e.into_inner());
-            for &k in &self.keyframes {
-                map.update_connections(k);
-            }
-        }
+        self.connect();
         for &k in &self.keyframes {
             self.mapper.on_keyframe(&self.map, k);
         }

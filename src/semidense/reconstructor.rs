@@ -56,6 +56,10 @@ impl KeyframeReconstructor {
                 rayon::ThreadPoolBuilder::new()
                     .num_threads(config.threads)
                     .thread_name(|i| format!("semidense-{i}"))
+                    .start_handler({
+                        let nice = config.nice;
+                        move |_| crate::runtime::lower_current_thread_priority(nice)
+                    })
                     .build()
                     .ok()
             })

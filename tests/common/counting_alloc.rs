@@ -11,7 +11,15 @@ thread_local! {
     static COUNT: Cell<Option<u64>> = const { Cell::new(None) };
 }
 
+/// Allocations by any thread while [`ALL_ON`] is set (for code with worker threads; use in a
+/// test binary with a single test so other tests do not interfere).
+static ALL: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+static ALL_ON: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 fn bump() {
+    if ALL_ON.load(std::sync::atomic::Ordering::Relaxed) {
+        ALL.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
     let _ = COUNT.try_with(|c| {
         if let Some(n) = c.get() {
             c.set(Some(n + 1));
@@ -39,4 +47,14 @@ pub fn allocations_in<R>(f: impl FnOnce() -> R) -> (R, u64) {
     let r = f();
     let n = COUNT.with(|c| c.replace(None)).unwrap_or(0);
     (r, n)
+}
+
+/// Counts heap allocations made by every thread of the process while running `f`.
+pub fn allocations_by_all_threads_in<R>(f: impl FnOnce() -> R) -> (R, u64) {
+    use std::sync::atomic::Ordering;
+    ALL.store(0, Ordering::SeqCst);
+    ALL_ON.store(true, Ordering::SeqCst);
+    let r = f();
+    ALL_ON.store(false, Ordering::SeqCst);
+    (r, ALL.load(Ordering::SeqCst))
 }

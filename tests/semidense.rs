@@ -1,0 +1,102 @@
+//! Semi-dense accuracy on the built-in synthetic sequence (exact poses and depth), by the
+//! evaluation protocol: offline from ground-truth poses, and online behind SLAM.
+
+use sdslam::camera::{Frame, FrameSource, FrameStatus};
+use sdslam::config::Config;
+use sdslam::eval::{ate, cloud_accuracy, CloudAccuracy, DepthFrame, TimedPose};
+use sdslam::geometry::Sim3;
+use sdslam::io::CloudPoint;
+use sdslam::runtime::System;
+use sdslam::semidense::Densifier;
+use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
+
+fn sequence(frames: usize) -> SyntheticSequence {
+    SyntheticSequence::new(SyntheticConfig {
+        frames,
+        ..SyntheticConfig::default()
+    })
+}
+
+/// Ground-truth depth rendered exactly at each keyframe of the cloud.
+fn depth_frames(seq: &SyntheticSequence, cloud: &[CloudPoint]) -> Vec<DepthFrame> {
+    let c = &seq.config;
+    let gt = seq.ground_truth();
+    let mut stamps: Vec<f64> = cloud.iter().map(|p| p.timestamp).collect();
+    stamps.dedup();
+    let mut f = Frame::new(c.width, c.height);
+    stamps
+        .iter()
+        .map(|&t| {
+            let i = ((t - c.t0) * c.fps).round() as usize;
+            let mut depth = vec![0.0f32; (c.width * c.height) as usize];
+            seq.render_with_depth(i, &mut f, &mut depth);
+            DepthFrame {
+                timestamp: t,
+                t_wc: gt[i].t_wc,
+                depth,
+            }
+        })
+        .collect()
+}
+
+fn check(label: &str, a: &CloudAccuracy) {
+    eprintln!(
+        "{label}: {} points, {:.0} per keyframe, median {:.3}%, within 2% {:.1}%, beyond 10% {:.2}%",
+        a.points,
+        a.points_per_keyframe,
+        a.median_relative_error * 100.0,
+        a.within_2pct * 100.0,
+        a.outliers_10pct * 100.0
+    );
+    assert!(a.evaluated as f64 > 0.95 * a.points as f64, "{a:?}");
+    assert!(a.median_relative_error <= 0.01, "{a:?}");
+    assert!(a.within_2pct >= 0.85, "{a:?}");
+    assert!(a.outliers_10pct <= 0.01, "{a:?}");
+    assert!(a.points_per_keyframe >= 8000.0, "{a:?}");
+}
+
+#[test]
+fn offline_densify_from_ground_truth_poses_is_accurate() {
+    let seq = sequence(300);
+    let cam = seq.config.camera();
+    let gt = seq.ground_truth();
+    let mut d = Densifier::new(&cam, &Config::default(), 64);
+    let mut f = Frame::new(cam.width, cam.height);
+    for i in (0..200).step_by(8) {
+        seq.render_frame(i, &mut f);
+        d.add_keyframe(&f.gray, Some(&f.rgb), f.timestamp, i as u64, &gt[i].t_wc);
+    }
+    let n = d.finish().stats.keyframes_reconstructed;
+    assert!(n >= 20, "{n} keyframes reconstructed");
+    let mut cloud = Vec::new();
+    d.cloud(&mut cloud);
+    let frames = depth_frames(&seq, &cloud);
+    check(
+        "densify (ground-truth poses)",
+        &cloud_accuracy(&cloud, &Sim3::identity(), &cam, &frames),
+    );
+}
+
+#[test]
+fn online_cloud_behind_slam_is_accurate() {
+    let mut seq = sequence(300);
+    let calib = seq.config.calibration();
+    let mut system = System::new(&calib, &Config::default(), 300, false);
+    let mut f = Frame::new(seq.config.width, seq.config.height);
+    while let Ok(FrameStatus::Ready) = seq.next_frame(&mut f) {
+        system.process(&f.gray, Some(&f.rgb), f.timestamp, f.index);
+    }
+    assert!(system.finish());
+    let sd = system
+        .semidense()
+        .expect("semi-dense mapping is on by default");
+    assert!(sd.stats.keyframes_reconstructed >= 10);
+    let cloud = system.semidense_cloud();
+    let keyframes: Vec<TimedPose> = system.keyframe_trajectory();
+    let align = ate(&seq.ground_truth(), &keyframes, 0.02, true).expect("aligned");
+    let frames = depth_frames(&seq, &cloud);
+    check(
+        "online (SLAM keyframe poses)",
+        &cloud_accuracy(&cloud, &align.alignment, &seq.config.camera(), &frames),
+    );
+}
