@@ -41,15 +41,17 @@ fn semidense(c: &mut Criterion) {
         cx: cam.cx,
         cy: cam.cy,
     };
+    let mut g = sdslam::semidense::GradientImage::new(w, h);
+    c.bench_function("semidense_gradients", |b| b.iter(|| g.compute(&gray, 8.0)));
     for threads in [1usize, 2] {
         let cfg = SemiDenseConfig {
             threads,
             ..SemiDenseConfig::default()
         };
         let mut rec = KeyframeReconstructor::new(k, w, h, &cfg);
-        rec.set_reference(&gray);
-        for (g, _, t) in &neighbours {
-            rec.add_neighbour(g, &(t.0 * t_cw.0.inverse()), 0.0);
+        rec.set_reference(1000, Some(&gray));
+        for (i, (g, _, t)) in neighbours.iter().enumerate() {
+            rec.add_neighbour(i as u64, Some(g), &(t.0 * t_cw.0.inverse()), 0.0);
         }
         let s = rec.reconstruct(range);
         eprintln!(

@@ -198,6 +198,9 @@ pub fn run(a: RunArgs) -> Result<()> {
     if let Some(sd) = system.semidense() {
         report.semidense_keyframes = sd.stats.keyframes_reconstructed;
         report.semidense_skipped_keyframes = sd.stats.keyframes_skipped;
+        report.semidense_skipped_culled = sd.stats.skipped_culled;
+        report.semidense_skipped_no_neighbours = sd.stats.skipped_no_neighbours;
+        report.semidense_skipped_overload = sd.stats.skipped_overload;
         report.timing_ms.semidense_keyframe = sd.t_keyframe.percentiles();
         report.timing_ms.semidense_depth = sd.t_depth.percentiles();
         report.timing_ms.semidense_intra = sd.t_intra.percentiles();

@@ -50,6 +50,11 @@ pub struct Report {
     /// their turn, too few neighbours, or its queue was full under overload).
     pub semidense_keyframes: usize,
     pub semidense_skipped_keyframes: usize,
+    /// Of those: culled by local mapping first, lacking wide-baseline neighbours or a depth
+    /// prior, or dropped under overload (queue or store full).
+    pub semidense_skipped_culled: usize,
+    pub semidense_skipped_no_neighbours: usize,
+    pub semidense_skipped_overload: usize,
     /// Points in `semidense.ply`.
     pub semidense_points: usize,
     /// Cloud accuracy by the evaluation protocol, when the source has ground-truth depth.

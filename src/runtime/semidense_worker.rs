@@ -106,6 +106,7 @@ impl SemiDenseWorker {
                 match handle.map(|h| h.join()) {
                     Some(Ok(mut m)) => {
                         m.stats.keyframes_skipped += dropped;
+                        m.stats.skipped_overload += dropped;
                         (SemiDenseWorker::Done(m), true)
                     }
                     _ => (SemiDenseWorker::Failed, false),

@@ -85,8 +85,8 @@ pub struct StereoPair {
     kr: Matrix3<f64>,
     /// K t_ji.
     kt: Vector3<f64>,
-    /// In-plane rotation from i to j (cos, sin), from the ORB matches.
-    rot: (f32, f32),
+    /// In-plane rotation from i to j in orientation steps, from the ORB matches.
+    rot: u8,
 }
 
 /// One inverse-depth hypothesis N(rho, sigma^2).
@@ -116,7 +116,7 @@ impl StereoPair {
         StereoPair {
             kr: km * r.matrix() * kinv,
             kt: km * t_ji.translation.vector,
-            rot: (delta_theta.cos() as f32, delta_theta.sin() as f32),
+            rot: quantise_orientation(delta_theta as f32),
         }
     }
 
@@ -174,10 +174,8 @@ impl StereoPair {
             (2.0, (target.width - 3) as f64),
             (2.0, (target.height - 3) as f64),
         )?;
-        // Reference gradient direction rotated into j, and the line direction, as codes.
-        let (c, s) = self.rot;
-        let (rx, ry) = (p.gx * c - p.gy * s, p.gx * s + p.gy * c);
-        let a_ref = quantise_orientation(fast_atan2(ry, rx));
+        // Reference gradient orientation rotated into j, and the line direction, in steps.
+        let a_ref = p.orientation.wrapping_add(self.rot) & 127;
         let a_line = quantise_orientation(fast_atan2(dy as f32, dx as f32));
         // Step one pixel along the major axis (the paper's parametrisation by u_j, or by v_j
         // for steep lines), starting on a whole pixel: every sample lies on a pixel column

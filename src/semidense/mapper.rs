@@ -44,13 +44,31 @@ struct CloudPixel {
     rgb: [u8; 3],
 }
 
+/// A neighbour as read from the map for one reconstruction.
+struct Neighbour {
+    id: KeyFrameId,
+    serial: u64,
+    /// Reference camera to this neighbour's camera.
+    t_ji: crate::geometry::Se3,
+    /// In-plane rotation of image content from the reference (radians).
+    delta_theta: f64,
+    /// Its grey image was copied (its gradients are not cached).
+    staged: bool,
+}
+
 /// Counters for the report.
 #[derive(Clone, Debug, Default)]
 pub struct SemiDenseStats {
     pub keyframes_reconstructed: usize,
-    /// Keyframes not reconstructed: culled before their turn, too few neighbours, no depth
-    /// prior, or the store was full.
+    /// Keyframes not reconstructed (the sum of the reasons below).
     pub keyframes_skipped: usize,
+    /// ... because local mapping culled them (redundant) before their turn.
+    pub skipped_culled: usize,
+    /// ... because they had fewer than lambda_N neighbours with enough baseline, or fewer
+    /// than 10 map points for the depth prior.
+    pub skipped_no_neighbours: usize,
+    /// ... because the store was full or, online, the thread's queue was full (overload).
+    pub skipped_overload: usize,
 }
 
 pub struct SemiDenseMapper {
@@ -109,6 +127,7 @@ impl SemiDenseMapper {
 
     /// Forgets everything (the map was reset: old keyframes are in another frame).
     pub fn reset(&mut self) {
+        self.reconstructor.forget();
         self.pending.clear();
         self.entries.clear();
         self.arena.clear();
@@ -154,9 +173,19 @@ impl SemiDenseMapper {
 
     fn reconstruct(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
         let t0 = Instant::now();
-        let Some((t_cw, timestamp, has_color, neighbours, rho_range)) = self.snapshot(map, kf)
+        let Some((t_cw, timestamp, serial, has_color, neighbours, rho_range)) =
+            self.snapshot(map, kf)
         else {
             self.stats.keyframes_skipped += 1;
+            let alive = map
+                .lock()
+                .map(|m| m.keyframe(kf).is_some())
+                .unwrap_or(false);
+            if alive {
+                self.stats.skipped_no_neighbours += 1;
+            } else {
+                self.stats.skipped_culled += 1;
+            }
             return;
         };
         let (w, h) = (self.reconstructor.width, self.reconstructor.height);
@@ -164,14 +193,21 @@ impl SemiDenseMapper {
             || self.arena.len() + w * h > self.arena.capacity()
         {
             self.stats.keyframes_skipped += 1;
+            self.stats.skipped_overload += 1;
             return;
         }
-        self.reconstructor.set_reference(&self.gray_ref);
         let times = {
-            // Neighbour poses were read under the lock with the reference's.
+            // Neighbour poses were read under the lock with the reference's; grey images
+            // were copied only for keyframes whose gradients are not cached.
             let r = &mut self.reconstructor;
-            for (k, (_, t_ji, dtheta)) in neighbours.iter().enumerate() {
-                r.add_neighbour(&self.gray_nb[k], t_ji, *dtheta);
+            if !r.set_reference(serial, Some(&self.gray_ref)) {
+                self.stats.keyframes_skipped += 1;
+                self.stats.skipped_overload += 1;
+                return;
+            }
+            for (k, n) in neighbours.iter().enumerate() {
+                let gray = n.staged.then(|| &self.gray_nb[k][..]);
+                r.add_neighbour(n.serial, gray, &n.t_ji, n.delta_theta);
             }
             r.reconstruct(rho_range)
         };
@@ -195,8 +231,8 @@ impl SemiDenseMapper {
             });
         }
         let mut nb = heapless::Vec::new();
-        for (id, _, _) in &neighbours {
-            let _ = nb.push(*id);
+        for n in &neighbours {
+            let _ = nb.push(n.id);
         }
         self.entries.push(KeyframeDepth {
             keyframe: kf,
@@ -233,8 +269,9 @@ impl SemiDenseMapper {
     ) -> Option<(
         CameraFromWorld,
         f64,
+        u64,
         bool,
-        heapless::Vec<(KeyFrameId, crate::geometry::Se3, f64), MAX_NEIGHBOURS>,
+        heapless::Vec<Neighbour, MAX_NEIGHBOURS>,
         (f64, f64),
     )> {
         let map = map.lock().unwrap_or_else(|e| e.into_inner());
@@ -275,11 +312,21 @@ impl SemiDenseMapper {
                 let &(_, jj) = p.observations.iter().find(|(o, _)| *o == nb)?;
                 Some((k.keypoints[i].angle, j.keypoints.get(jj as usize)?.angle))
             });
-            let dtheta = median_rotation(pairs, &mut angles);
+            let delta_theta = median_rotation(pairs, &mut angles);
             let slot = neighbours.len();
-            self.gray_nb[slot].clear();
-            self.gray_nb[slot].extend_from_slice(&j.gray);
-            if neighbours.push((nb, t_ji, dtheta)).is_err() {
+            let staged = !self.reconstructor.is_cached(j.serial);
+            if staged {
+                self.gray_nb[slot].clear();
+                self.gray_nb[slot].extend_from_slice(&j.gray);
+            }
+            let n = Neighbour {
+                id: nb,
+                serial: j.serial,
+                t_ji,
+                delta_theta,
+                staged,
+            };
+            if neighbours.push(n).is_err() {
                 break;
             }
         }
@@ -293,7 +340,14 @@ impl SemiDenseMapper {
         if k.has_color {
             self.rgb_ref.extend_from_slice(&k.rgb);
         }
-        Some((k.t_cw, k.timestamp, k.has_color, neighbours, rho_range))
+        Some((
+            k.t_cw,
+            k.timestamp,
+            k.serial,
+            k.has_color,
+            neighbours,
+            rho_range,
+        ))
     }
 
     /// Runs the inter-keyframe check of every unchecked keyframe whose neighbours are all

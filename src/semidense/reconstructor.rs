@@ -29,16 +29,27 @@ pub struct StageTimes {
     pub samples: u64,
 }
 
+struct CachedImage {
+    /// Keyframe serial number (unique over a run), `None` when free.
+    key: Option<u64>,
+    last_used: u64,
+    image: GradientImage,
+}
+
 pub struct KeyframeReconstructor {
     pub k: Intrinsics,
     pub width: usize,
     pub height: usize,
     params: SearchParams,
     lambda_n: usize,
-    reference: GradientImage,
-    neighbours: Vec<GradientImage>,
+    /// Gradient images of recent keyframes (least recently used replaced): a keyframe is the
+    /// neighbour of about N others, so most are computed once.
+    cache: Vec<CachedImage>,
+    clock: u64,
+    reference: usize,
+    neighbours: heapless::Vec<usize, MAX_NEIGHBOURS>,
+    max_neighbours: usize,
     pairs: Vec<StereoPair>,
-    n_active: usize,
     /// Fused map (eq. 11) and the intra-checked map; sigma^2 = 0 marks "no estimate".
     raw_rho: Vec<f32>,
     raw_s2: Vec<f32>,
@@ -70,10 +81,18 @@ impl KeyframeReconstructor {
             height,
             params: SearchParams::from_config(config),
             lambda_n: config.lambda_n,
-            reference: GradientImage::new(width, height),
-            neighbours: (0..n).map(|_| GradientImage::new(width, height)).collect(),
+            cache: (0..2 * n + 2)
+                .map(|_| CachedImage {
+                    key: None,
+                    last_used: 0,
+                    image: GradientImage::new(width, height),
+                })
+                .collect(),
+            clock: 0,
+            reference: 0,
+            neighbours: heapless::Vec::new(),
+            max_neighbours: n,
             pairs: Vec::with_capacity(n),
-            n_active: 0,
             raw_rho: vec![0.0; width * height],
             raw_s2: vec![0.0; width * height],
             rho: vec![0.0; width * height],
@@ -83,31 +102,78 @@ impl KeyframeReconstructor {
     }
 
     pub fn max_neighbours(&self) -> usize {
-        self.neighbours.len()
+        self.max_neighbours
     }
 
-    /// Sets the keyframe to reconstruct (grey, undistorted) and forgets the neighbours.
-    pub fn set_reference(&mut self, gray: &[u8]) {
-        self.reference.compute(gray, self.params.lambda_g);
-        self.n_active = 0;
+    /// Forgets every cached gradient image (the map was reset).
+    pub fn forget(&mut self) {
+        for c in &mut self.cache {
+            c.key = None;
+            c.last_used = 0;
+        }
+    }
+
+    /// Whether the gradient image of keyframe `key` is cached (its grey image need not be
+    /// given again).
+    pub fn is_cached(&self, key: u64) -> bool {
+        self.cache.iter().any(|c| c.key == Some(key))
+    }
+
+    /// The cache slot of `key`, computing it from `gray` if not cached. `None` when it is not
+    /// cached and no image is given.
+    fn slot(&mut self, key: u64, gray: Option<&[u8]>) -> Option<usize> {
+        self.clock += 1;
+        if let Some(i) = self.cache.iter().position(|c| c.key == Some(key)) {
+            self.cache[i].last_used = self.clock;
+            return Some(i);
+        }
+        let gray = gray?;
+        // Least recently used; slots of the keyframe being set up are the most recent.
+        let i = (0..self.cache.len()).min_by_key(|&i| self.cache[i].last_used)?;
+        let c = &mut self.cache[i];
+        c.image.compute(gray, self.params.lambda_g);
+        c.key = Some(key);
+        c.last_used = self.clock;
+        Some(i)
+    }
+
+    /// Sets the keyframe to reconstruct (`key`: its serial number; grey, undistorted) and
+    /// forgets the neighbours. False when it is not cached and no image is given.
+    pub fn set_reference(&mut self, key: u64, gray: Option<&[u8]>) -> bool {
+        self.neighbours.clear();
         self.pairs.clear();
+        match self.slot(key, gray) {
+            Some(i) => {
+                self.reference = i;
+                true
+            }
+            None => false,
+        }
     }
 
-    /// Adds a neighbour: its grey image, the transform from the reference camera to it, and
-    /// the in-plane rotation (radians) of image content from the reference to it. False when
-    /// the capacity is reached.
-    pub fn add_neighbour(&mut self, gray: &[u8], t_ji: &Se3, delta_theta: f64) -> bool {
-        if self.n_active == self.neighbours.len() {
+    /// Adds a neighbour: its serial and grey image (may be `None` when cached), the transform
+    /// from the reference camera to it, and the in-plane rotation (radians) of image content
+    /// from the reference to it. False when the capacity is reached or the image is missing.
+    pub fn add_neighbour(
+        &mut self,
+        key: u64,
+        gray: Option<&[u8]>,
+        t_ji: &Se3,
+        delta_theta: f64,
+    ) -> bool {
+        if self.neighbours.len() == self.max_neighbours {
             return false;
         }
-        self.neighbours[self.n_active].compute(gray, self.params.lambda_g);
+        let Some(i) = self.slot(key, gray) else {
+            return false;
+        };
+        let _ = self.neighbours.push(i);
         self.pairs.push(StereoPair::new(&self.k, t_ji, delta_theta));
-        self.n_active += 1;
         true
     }
 
     pub fn neighbours(&self) -> usize {
-        self.n_active
+        self.neighbours.len()
     }
 
     /// Reconstructs the reference keyframe for inverse depths in `rho_range`; the result is
@@ -115,11 +181,16 @@ impl KeyframeReconstructor {
     pub fn reconstruct(&mut self, rho_range: (f64, f64)) -> StageTimes {
         let t0 = Instant::now();
         let (w, h) = (self.width, self.height);
+        let mut neighbours: heapless::Vec<&GradientImage, MAX_NEIGHBOURS> = heapless::Vec::new();
+        for &i in &self.neighbours {
+            let _ = neighbours.push(&self.cache[i].image);
+        }
+        let reference = &self.cache[self.reference].image;
         let ctx = DepthContext {
             params: self.params,
             lambda_n: self.lambda_n,
-            reference: &self.reference,
-            neighbours: &self.neighbours[..self.n_active],
+            reference,
+            neighbours: &neighbours[..],
             pairs: &self.pairs,
             rho_range,
             pixels: AtomicU64::new(0),
@@ -137,12 +208,20 @@ impl KeyframeReconstructor {
             depth_rows,
         );
         let t1 = Instant::now();
-        let (raw_rho, raw_s2, reference) = (&self.raw_rho, &self.raw_s2, &self.reference);
+        let (raw_rho, raw_s2) = (&self.raw_rho, &self.raw_s2);
         let lambda_g = self.params.lambda_g;
         let intra_rows = |rows: (usize, (&mut [f32], &mut [f32]))| {
             let (y, (r, s)) = rows;
-            let vals = &reference.values[y * w..(y + 1) * w];
-            check_smooth_grow_row(y, w, h, raw_rho, raw_s2, |x| vals[x][1] > lambda_g, r, s);
+            check_smooth_grow_row(
+                y,
+                w,
+                h,
+                raw_rho,
+                raw_s2,
+                |x| reference.modulus(y * w + x) > lambda_g,
+                r,
+                s,
+            );
         };
         run_rows(
             self.pool.as_ref(),
@@ -201,7 +280,7 @@ struct DepthContext<'a> {
     params: SearchParams,
     lambda_n: usize,
     reference: &'a GradientImage,
-    neighbours: &'a [GradientImage],
+    neighbours: &'a [&'a GradientImage],
     pairs: &'a [StereoPair],
     rho_range: (f64, f64),
     pixels: AtomicU64,
@@ -215,11 +294,12 @@ impl DepthContext<'_> {
         if y < 2 || y + 2 >= h {
             return;
         }
-        let row = &self.reference.values[y * w..(y + 1) * w];
+        let codes = &self.reference.packed[y * w..(y + 1) * w];
         let mut hyps = [Hypothesis::default(); MAX_NEIGHBOURS];
         let (mut pixels, mut samples) = (0u64, 0u64);
         for x in 2..w - 2 {
-            if row[x][1] <= self.params.lambda_g {
+            // Pixels with G > lambda_G carry a non-zero code.
+            if codes[x] & 255 == 0 {
                 continue;
             }
             let p = &self.reference.at(x, y);

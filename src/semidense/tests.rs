@@ -155,9 +155,14 @@ fn keyframe_depth_and_intra_stages_are_accurate() {
         .collect();
     let range = prior_range(&inv).unwrap();
     let mut rec = KeyframeReconstructor::new(k, w, h, &cfg);
-    rec.set_reference(&r.gray);
-    for n in &nbs {
-        rec.add_neighbour(&n.gray, &(n.t_cw.0 * r.t_cw.0.inverse()), 0.0);
+    rec.set_reference(1000, Some(&r.gray));
+    for (i, n) in nbs.iter().enumerate() {
+        rec.add_neighbour(
+            i as u64,
+            Some(&n.gray),
+            &(n.t_cw.0 * r.t_cw.0.inverse()),
+            0.0,
+        );
     }
     let t = std::time::Instant::now();
     let times = rec.reconstruct(range);
