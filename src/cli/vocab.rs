@@ -81,7 +81,7 @@ fn collect(
                 FrameStatus::End => break,
                 FrameStatus::Skipped { .. } => {}
                 FrameStatus::Ready => {
-                    if i % every.max(1) == 0 {
+                    if i.is_multiple_of(every.max(1)) {
                         out.push(extract(
                             &frame.gray,
                             frame.width,
