@@ -171,6 +171,7 @@ pub fn run(a: RunArgs) -> Result<()> {
 
     report.wall_time_s = started.elapsed().as_secs_f64();
     report.peak_rss_mb = io::peak_rss_mb();
+    let finishing = Instant::now();
     if !system.finish() {
         report.stopped_early.get_or_insert_with(|| {
             "the local-mapping thread panicked; outputs written from the map as it was".into()
@@ -201,6 +202,8 @@ pub fn run(a: RunArgs) -> Result<()> {
         report.semidense_skipped_culled = sd.stats.skipped_culled;
         report.semidense_skipped_no_neighbours = sd.stats.skipped_no_neighbours;
         report.semidense_skipped_overload = sd.stats.skipped_overload;
+        report.semidense_busy_s = sd.stats.busy_s;
+        report.semidense_finish_s = finishing.elapsed().as_secs_f64();
         report.timing_ms.semidense_keyframe = sd.t_keyframe.percentiles();
         report.timing_ms.semidense_depth = sd.t_depth.percentiles();
         report.timing_ms.semidense_intra = sd.t_intra.percentiles();

@@ -55,6 +55,10 @@ pub struct Report {
     pub semidense_skipped_culled: usize,
     pub semidense_skipped_no_neighbours: usize,
     pub semidense_skipped_overload: usize,
+    /// Semi-dense thread busy time over the run, and how long after the last frame it
+    /// finished (the keyframes still within the delay, then the final checks).
+    pub semidense_busy_s: f64,
+    pub semidense_finish_s: f64,
     /// Points in `semidense.ply`.
     pub semidense_points: usize,
     /// Cloud accuracy by the evaluation protocol, when the source has ground-truth depth.

@@ -69,6 +69,8 @@ pub struct SemiDenseStats {
     pub skipped_no_neighbours: usize,
     /// ... because the store was full or, online, the thread's queue was full (overload).
     pub skipped_overload: usize,
+    /// Wall time spent reconstructing and checking keyframes, seconds.
+    pub busy_s: f64,
 }
 
 pub struct SemiDenseMapper {
@@ -244,6 +246,7 @@ impl SemiDenseMapper {
             checked: false,
             elapsed_ms: t0.elapsed().as_secs_f64() * 1e3,
         });
+        self.stats.busy_s += t0.elapsed().as_secs_f64();
         self.t_depth.record(times.depth);
         self.t_intra.record(times.intra);
         if std::env::var_os("SDSLAM_SEMIDENSE_DEBUG").is_some() {
@@ -407,6 +410,7 @@ impl SemiDenseMapper {
             p.rho = inter.check(p.raw.idx, p.raw.rho, lambda_n).unwrap_or(0.0);
         }
         let dt = t0.elapsed();
+        self.stats.busy_s += dt.as_secs_f64();
         self.t_inter.record(dt);
         let me = &mut self.entries[e];
         me.checked = true;
