@@ -23,28 +23,33 @@ pub fn fuse(h: &[Hypothesis], lambda_n: usize) -> Option<(f32, f32)> {
     if h.len() < lambda_n {
         return None;
     }
-    let mut best: Option<(usize, f32, f32)> = None; // (count, info, weighted sum)
-    for a in h {
-        let s2a = a.sigma * a.sigma;
-        let (mut n, mut info, mut sum) = (0usize, 0.0f32, 0.0f32);
-        for b in h {
-            let s2b = b.sigma * b.sigma;
-            if compatible(a.rho, s2a, b.rho, s2b) {
+    // Inverse variances once (eq. 10 and 11 both use them).
+    let mut info = [0.0f32; super::MAX_NEIGHBOURS];
+    for (i, x) in h.iter().enumerate().take(info.len()) {
+        info[i] = 1.0 / (x.sigma * x.sigma);
+    }
+    let h = &h[..h.len().min(info.len())];
+    let mut best: Option<(usize, f32, f32)> = None; // (count, information, weighted sum)
+    for (a, ha) in h.iter().enumerate() {
+        let (mut n, mut inf, mut sum) = (0usize, 0.0f32, 0.0f32);
+        for (b, hb) in h.iter().enumerate() {
+            let d = ha.rho - hb.rho;
+            if d * d * (info[a] + info[b]) < CHI2_2DOF_95 {
                 n += 1;
-                info += 1.0 / s2b;
-                sum += b.rho / s2b;
+                inf += info[b];
+                sum += hb.rho * info[b];
             }
         }
         let better = match best {
             None => true,
-            Some((bn, binfo, _)) => n > bn || (n == bn && info > binfo),
+            Some((bn, binf, _)) => n > bn || (n == bn && inf > binf),
         };
         if better {
-            best = Some((n, info, sum));
+            best = Some((n, inf, sum));
         }
     }
-    let (n, info, sum) = best?;
-    (n >= lambda_n && info > 0.0).then(|| (sum / info, 1.0 / info))
+    let (n, inf, sum) = best?;
+    (n >= lambda_n && inf > 0.0).then(|| (sum / inf, 1.0 / inf))
 }
 
 #[cfg(test)]

@@ -305,7 +305,12 @@ impl DepthContext<'_> {
             let p = &self.reference.at(x, y);
             pixels += 1;
             let mut n = 0;
-            for (pair, img) in self.pairs.iter().zip(self.neighbours) {
+            let total = self.pairs.len();
+            for (j, (pair, img)) in self.pairs.iter().zip(self.neighbours).enumerate() {
+                // Fewer than lambda_N hypotheses possible: fusion would reject the pixel.
+                if n + (total - j) < self.lambda_n {
+                    break;
+                }
                 if let Some(hy) = pair.search(
                     &self.params,
                     x as f64,
