@@ -41,6 +41,10 @@ pub struct RunArgs {
     /// Use only the first N frames.
     #[arg(long)]
     frames: Option<usize>,
+    /// Simulated blackout: frames START..START+COUNT of the source are read but not given to
+    /// SLAM (as a covered lens or a dropped link), e.g. `--drop 300:60`.
+    #[arg(long, value_parser = parse_drop)]
+    drop: Option<(u64, u64)>,
     /// Also write each reconstructed keyframe's depth map to OUT/depth/<timestamp>.png
     /// (16-bit, depth x 5000 in map units, 0 = no estimate).
     #[arg(long)]
@@ -59,6 +63,7 @@ impl RunArgs {
             deterministic: false,
             frames: None,
             depth_maps: false,
+            drop: None,
         }
     }
 }
@@ -143,6 +148,12 @@ pub fn run(a: RunArgs) -> Result<()> {
                 break;
             }
         }
+        if let Some((start, count)) = a.drop {
+            if frame.index >= start && frame.index < start + count {
+                report.blackout_frames += 1;
+                continue;
+            }
+        }
         let t0 = frame.arrival.unwrap_or_else(Instant::now);
         let input = match &rectify {
             Some(map) => {
@@ -159,7 +170,11 @@ pub fn run(a: RunArgs) -> Result<()> {
         };
         let rgb = input.has_color.then_some(&input.rgb[..]);
         let r = system.process(&input.gray, rgb, input.timestamp, input.index);
-        let _ = r;
+        if let (Some((start, count)), None) = (a.drop, report.frames_to_recover) {
+            if input.index >= start + count && r.state == TrackingState::Ok {
+                report.frames_to_recover = Some(input.index - (start + count));
+            }
+        }
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         frame_timer.record_ms(ms);
         if ms > deadline_ms {
@@ -183,6 +198,7 @@ pub fn run(a: RunArgs) -> Result<()> {
     report.tracked_frames = system.stats.tracked_frames;
     report.backfilled_frames = system.stats.backfilled_frames;
     report.lost_episodes = system.tracker.lost_episodes;
+    report.relocalisations = system.tracker.relocalisations;
     (report.keyframes, report.map_points) = system.map_size();
     let trajectory = system.trajectory();
     let keyframes = system.keyframe_trajectory();
@@ -254,4 +270,20 @@ pub fn run(a: RunArgs) -> Result<()> {
     );
     let _ = TrackingState::Ok;
     Ok(())
+}
+
+/// Parses `START:COUNT`.
+fn parse_drop(s: &str) -> std::result::Result<(u64, u64), String> {
+    let (a, b) = s
+        .split_once(':')
+        .ok_or_else(|| format!("`{s}`: expected START:COUNT, e.g. 300:60"))?;
+    let start = a
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{a}`: START is not a frame number"))?;
+    let count = b
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{b}`: COUNT is not a number of frames"))?;
+    Ok((start, count))
 }

@@ -34,6 +34,10 @@ pub struct Report {
     pub map_points: usize,
     pub loops_closed: usize,
     pub relocalisations: usize,
+    /// With `--drop START:COUNT`: frames withheld, and how many frames after the blackout
+    /// tracking took to be Ok again (relocalisation), if it did.
+    pub blackout_frames: usize,
+    pub frames_to_recover: Option<u64>,
     /// Frames the source could not read (corrupt/unreadable images), skipped.
     pub skipped_frames: usize,
     pub deadline_misses: usize,

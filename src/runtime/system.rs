@@ -17,10 +17,12 @@ use crate::geometry::{CameraFromWorld, Se3, WorldFromCamera};
 use crate::local_mapping::{median_depth, LocalMapper};
 use crate::map::{KeyFrameId, Map, MapConfig};
 use crate::optimize::{BaObservation, BaOptions, BaProblem, BundleAdjuster};
+use crate::place_recognition::{default_vocabulary, KeyFrameDatabase, Vocabulary};
 use crate::runtime::semidense_worker::SemiDenseWorker;
 use crate::runtime::StageTimer;
 use crate::semidense::{Intrinsics, SemiDenseMapper};
 use crate::tracking::{InitAttempt, Initializer, TrackedFrame, Tracker, TrackingState};
+use std::collections::HashMap;
 
 /// What happened to one frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -77,6 +79,11 @@ pub struct System {
     /// Keyframes made while processing the current frame (told to semi-dense mapping after
     /// the map is unlocked).
     fresh_keyframes: heapless::Vec<KeyFrameId, 4>,
+    /// Place recognition for relocalisation: the vocabulary (the shipped default unless one is
+    /// given) and the keyframe database, keyed by keyframe serial.
+    vocabulary: Option<Arc<Vocabulary>>,
+    database: KeyFrameDatabase,
+    database_keys: HashMap<u32, KeyFrameId>,
     init: Initializer,
     frame: TrackedFrame,
     trajectory: Vec<TrajectoryEntry>,
@@ -137,7 +144,12 @@ impl System {
         } else {
             SemiDenseWorker::Off
         };
+        let vocabulary = default_vocabulary().ok().map(Arc::new);
+        let database = KeyFrameDatabase::new(vocabulary.as_ref().map_or(0, |v| v.n_words()));
         System {
+            vocabulary,
+            database,
+            database_keys: HashMap::new(),
             tracker: Tracker::new(camera, scales.clone(), max_features),
             mapping,
             semidense,
@@ -238,7 +250,11 @@ impl System {
         let state = if self.tracker.state == TrackingState::NotInitialised {
             self.initialize(map, gray, rgb)
         } else {
-            let st = self.tracker.track(map, &mut self.frame);
+            let st = if self.tracker.state == TrackingState::Lost && map.n_keyframes() > 5 {
+                self.relocalise(map)
+            } else {
+                self.tracker.track(map, &mut self.frame)
+            };
             let idle = match &self.mapping {
                 Mapping::Inline(_) => true,
                 Mapping::Thread { idle, .. } => idle.load(Ordering::Acquire),
@@ -285,8 +301,42 @@ impl System {
         }
     }
 
+    /// Keyframes to try relocalising against: the database's best matches for the frame's
+    /// bag of words (stale entries of culled keyframes are dropped on the way).
+    fn relocalise(&mut self, map: &mut Map) -> TrackingState {
+        let Some(v) = self.vocabulary.clone() else {
+            return TrackingState::Lost;
+        };
+        let (bow, _) = v.transform(&self.frame.features.descriptors, 2);
+        let hits = self.database.query(&bow, 0.0, 10, |_| false);
+        let mut candidates = Vec::with_capacity(hits.len());
+        for (key, _) in hits {
+            match self.database_keys.get(&key) {
+                Some(&kf) if map.keyframe(kf).is_some() => candidates.push(kf),
+                _ => {
+                    self.database.remove(key);
+                    self.database_keys.remove(&key);
+                }
+            }
+        }
+        self.tracker.relocalise(map, &mut self.frame, &candidates)
+    }
+
+    /// Adds a keyframe to the place-recognition database.
+    fn index_keyframe(&mut self, map: &Map, kf: KeyFrameId) {
+        let (Some(v), Some(k)) = (self.vocabulary.as_ref(), map.keyframe(kf)) else {
+            return;
+        };
+        let (bow, _) = v.transform(&k.descriptors, 2);
+        let key = k.serial as u32;
+        self.database.add(key, &bow);
+        self.database_keys.insert(key, kf);
+    }
+
     fn reset(&mut self, map: &mut Map) {
         map.reset();
+        self.database = KeyFrameDatabase::new(self.vocabulary.as_ref().map_or(0, |v| v.n_words()));
+        self.database_keys.clear();
         self.semidense.reset();
         self.tracker.state = TrackingState::NotInitialised;
         self.tracker.reference_kf = None;
@@ -381,6 +431,8 @@ impl System {
         self.stats.keyframes_created += 2;
         let _ = self.fresh_keyframes.push(kf0);
         let _ = self.fresh_keyframes.push(kf1);
+        self.index_keyframe(map, kf0);
+        self.index_keyframe(map, kf1);
         // Keyframe 0's pose enters the trajectory too.
         self.trajectory.push(TrajectoryEntry {
             timestamp: self.init.reference_timestamp,
@@ -533,6 +585,7 @@ impl System {
         self.tracker.last_keyframe_frame = self.frame.index;
         self.stats.keyframes_created += 1;
         let _ = self.fresh_keyframes.push(kf);
+        self.index_keyframe(map, kf);
         true
     }
 

@@ -77,6 +77,8 @@ pub struct Tracker {
     pub reference_kf: Option<KeyFrameId>,
     pub last_keyframe_frame: u64,
     pub lost_episodes: usize,
+    /// Successful relocalisations.
+    pub relocalisations: usize,
     projected: Vec<ProjectedPoint>,
     proj_ids: Vec<crate::map::MapPointId>,
     /// Per projected point: its keypoint index in the last frame (rotation check).
@@ -109,6 +111,7 @@ impl Tracker {
             reference_kf: None,
             last_keyframe_frame: 0,
             lost_episodes: 0,
+            relocalisations: 0,
             projected: Vec::with_capacity(max_features * 8),
             proj_ids: Vec::with_capacity(max_features * 8),
             proj_kp: Vec::with_capacity(max_features),
@@ -229,11 +232,90 @@ impl Tracker {
     /// Fallback: match all features of the reference keyframe by descriptor (ratio 0.7 and
     /// rotation consistency), optimise from the last pose.
     fn track_reference_keyframe(&mut self, map: &Map, f: &mut TrackedFrame) -> usize {
-        let Some(kf) = self.reference_kf.and_then(|r| map.keyframe(r)) else {
+        let Some(kf) = self.reference_kf.filter(|r| map.keyframe(*r).is_some()) else {
             return 0;
         };
         f.t_cw = self.last.t_cw;
         f.points.iter_mut().for_each(|p| *p = None);
+        if self.match_keyframe(map, kf, f, 0.7) < 15 {
+            return 0;
+        }
+        self.optimize_pose(map, f)
+    }
+
+    /// Relocalisation (tracking lost): for each candidate keyframe (from the place-recognition
+    /// database, best first) match its map points to `f` by descriptor (ratio 0.75, rotation
+    /// consistency), solve EPnP-RANSAC on >= 15 matches, optimise the pose on the inliers and,
+    /// with >= 10 left, track the local map from there; success when the local map gives
+    /// `min_inliers`. Returns the state (Ok on success; Lost otherwise).
+    pub fn relocalise(
+        &mut self,
+        map: &mut Map,
+        f: &mut TrackedFrame,
+        candidates: &[KeyFrameId],
+    ) -> TrackingState {
+        let k = self.camera.k();
+        let cfg = crate::geometry::pnp::PnpRansacConfig::default();
+        for &c in candidates {
+            f.reset_matches();
+            let n = self.match_keyframe(map, c, f, 0.75);
+            if n < 15 {
+                continue;
+            }
+            let (mut pw, mut px, mut s2, mut which) =
+                (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            for (j, p) in f.points.iter().enumerate() {
+                let Some(mp) = p.and_then(|p| map.point(p)) else {
+                    continue;
+                };
+                let kp = &f.features.keypoints[j];
+                pw.push(mp.position);
+                px.push(Vector2::new(kp.ux as f64, kp.uy as f64));
+                let s = self.scales[kp.octave as usize];
+                s2.push(s * s);
+                which.push(j);
+            }
+            let Some(sol) = crate::geometry::pnp::pnp_ransac(&pw, &px, &s2, &k, &cfg) else {
+                continue;
+            };
+            for (m, &j) in which.iter().enumerate() {
+                if !sol.inliers[m] {
+                    f.points[j] = None;
+                }
+            }
+            f.t_cw = sol.t_cw;
+            if self.optimize_pose(map, f) < 10 {
+                continue;
+            }
+            self.reference_kf = Some(c);
+            let mut local = std::mem::take(&mut self.local);
+            let n = local.track(self, map, f);
+            self.local = local;
+            if n >= self.config.min_inliers {
+                self.state = TrackingState::Ok;
+                self.velocity = None;
+                self.relocalisations += 1;
+                return self.state;
+            }
+        }
+        f.reset_matches();
+        self.state = TrackingState::Lost;
+        self.state
+    }
+
+    /// Matches the map points observed by keyframe `kf` to `f`'s features by descriptor
+    /// (best below TH_LOW and `ratio` x the second best, one map point per feature, rotation
+    /// consistency). Returns how many features got a map point.
+    fn match_keyframe(
+        &mut self,
+        map: &Map,
+        kf: KeyFrameId,
+        f: &mut TrackedFrame,
+        ratio: f32,
+    ) -> usize {
+        let Some(kf) = map.keyframe(kf) else {
+            return 0;
+        };
         let mut best_for: Vec<(u32, usize)> = vec![(u32::MAX, usize::MAX); f.features.len()];
         let rot = &mut self.rot;
         rot.clear();
@@ -250,7 +332,7 @@ impl Tracker {
                     s = d;
                 }
             }
-            if b <= TH_LOW && (b as f32) < 0.7 * s as f32 && b < best_for[bj].0 {
+            if b <= TH_LOW && (b as f32) < ratio * s as f32 && b < best_for[bj].0 {
                 best_for[bj] = (b, i);
                 f.points[bj] = Some(mp);
             }
@@ -265,10 +347,7 @@ impl Tracker {
             }
         }
         rot.for_each_rejected(|j| f.points[j as usize] = None);
-        if f.points.iter().filter(|p| p.is_some()).count() < 15 {
-            return 0;
-        }
-        self.optimize_pose(map, f)
+        f.points.iter().filter(|p| p.is_some()).count()
     }
 
     /// Tracks `f` (features extracted, matches reset). Updates the motion model and state.
