@@ -306,3 +306,92 @@ fn vocab_train_import_and_bad_files() {
         "{err}"
     );
 }
+
+#[test]
+fn densify_writes_cloud_depth_maps_and_accuracy_and_eval_cloud_agrees() {
+    let d = tempfile::tempdir().unwrap();
+    let seq = d.path().join("seq");
+    let out = d.path().join("out");
+    let (ok, _, err) = sdslam(&[
+        "synth",
+        "--out",
+        seq.to_str().unwrap(),
+        "--frames",
+        "90",
+        "--depth-every",
+        "8",
+    ]);
+    assert!(ok, "{err}");
+    let poses = seq.join("groundtruth.txt");
+    let (ok, _, err) = sdslam(&[
+        "densify",
+        seq.to_str().unwrap(),
+        "--poses",
+        poses.to_str().unwrap(),
+        // The 90-frame orbit turns 4 degrees per frame: every 2nd frame is a keyframe.
+        "--every",
+        "2",
+        "--depth-maps",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let r = report(&out);
+    let n = r["semidense_points"].as_u64().unwrap();
+    assert!(n > 10_000, "{n} points");
+    let acc = &r["semidense_accuracy"];
+    assert!(
+        acc["median_relative_error"].as_f64().unwrap() < 0.01,
+        "{acc}"
+    );
+    let ply = std::fs::read(out.join("semidense.ply")).unwrap();
+    let cloud = sdslam::io::decode_ply(&ply, &out.join("semidense.ply")).unwrap();
+    assert_eq!(cloud.len() as u64, n);
+    // One 16-bit depth map per reconstructed keyframe, at the calibration's size.
+    let maps: Vec<_> = std::fs::read_dir(out.join("depth")).unwrap().collect();
+    assert_eq!(
+        maps.len() as u64,
+        r["semidense_keyframes"].as_u64().unwrap()
+    );
+    let first = maps[0].as_ref().unwrap().path();
+    let (w, h, depth) = sdslam::io::read_depth_png(&first, 5000.0).unwrap();
+    assert_eq!((w, h), (640, 480));
+    assert!(depth.iter().filter(|d| **d > 0.0).count() > 1000);
+    // The evaluation subcommand reproduces the report's figure.
+    let (ok, stdout, err) = sdslam(&[
+        "eval",
+        "cloud",
+        out.to_str().unwrap(),
+        "--gt",
+        seq.to_str().unwrap(),
+        "--keyframes",
+        poses.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let e: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(e["points"], acc["points"]);
+    assert!(
+        (e["median_relative_error"].as_f64().unwrap()
+            - acc["median_relative_error"].as_f64().unwrap())
+        .abs()
+            < 1e-9
+    );
+}
+
+#[test]
+fn bad_drop_and_densify_arguments_are_clear_errors() {
+    let (ok, _, err) = sdslam(&["run", "--drop", "10-5"]);
+    assert!(!ok && err.contains("START:COUNT"), "{err}");
+    let d = tempfile::tempdir().unwrap();
+    let missing = d.path().join("nope.txt");
+    let (ok, _, err) = sdslam(&[
+        "densify",
+        "synthetic",
+        "--poses",
+        missing.to_str().unwrap(),
+        "--out",
+        d.path().join("o").to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("nope.txt"), "{err}");
+}

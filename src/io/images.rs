@@ -25,18 +25,19 @@ pub fn write_depth_png(
     depth: &[f32],
     factor: f32,
 ) -> Result<()> {
-    let mut be = Vec::with_capacity(depth.len() * 2);
+    // The encoder takes 16-bit samples in native byte order (it writes PNG's big endian).
+    let mut ne = Vec::with_capacity(depth.len() * 2);
     for &d in depth {
         let v = if d.is_finite() && d > 0.0 {
             (d * factor).round().clamp(0.0, 65535.0) as u16
         } else {
             0
         };
-        be.extend_from_slice(&v.to_be_bytes());
+        ne.extend_from_slice(&v.to_ne_bytes());
     }
     let mut buf = Vec::new();
     image::codecs::png::PngEncoder::new(&mut buf)
-        .write_image(&be, width, height, image::ExtendedColorType::L16)
+        .write_image(&ne, width, height, image::ExtendedColorType::L16)
         .map_err(|e| encode_err(path, e))?;
     super::write_atomic(path, &buf)
 }
@@ -96,4 +97,22 @@ pub fn load_tum_depth_frames(
     }
     frames.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
     Ok(frames)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_png_round_trips_in_metres() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("d.png");
+        let depth = [0.0f32, 1.0, 2.5, 0.0002, 13.1];
+        write_depth_png(&p, 5, 1, &depth, 5000.0).unwrap();
+        let (w, h, back) = read_depth_png(&p, 5000.0).unwrap();
+        assert_eq!((w, h), (5, 1));
+        for (a, b) in depth.iter().zip(&back) {
+            assert!((a - b).abs() <= 0.5 / 5000.0, "{a} read back as {b}");
+        }
+    }
 }
