@@ -72,6 +72,8 @@ pub struct SemiDenseConfig {
     pub min_baseline_ratio: f64,
     /// Nice value added to the semi-dense threads (Linux), so tracking always wins a core.
     pub nice: i32,
+    /// CPUs for the semi-dense thread and its workers; empty = no pinning.
+    pub cpus: Vec<usize>,
     /// Capacity of the stored semi-dense pixels over the run (a full store skips keyframes,
     /// counted in the report).
     pub max_points: usize,
@@ -92,6 +94,7 @@ impl Default for SemiDenseConfig {
             threads: 2,
             max_similarity_error: 5.99,
             nice: 10,
+            cpus: Vec::new(),
             min_baseline_ratio: 0.05,
             max_points: 8_000_000,
         }
@@ -106,6 +109,9 @@ pub struct RuntimeConfig {
     pub deadline_ms: Option<f64>,
     /// Real-time replay speed (1.0 = recorded rate).
     pub realtime_speed: f64,
+    /// CPUs for the tracking (calling) thread and the local-mapping thread; empty = no pinning.
+    pub tracking_cpus: Vec<usize>,
+    pub mapping_cpus: Vec<usize>,
 }
 
 impl Default for RuntimeConfig {
@@ -113,6 +119,8 @@ impl Default for RuntimeConfig {
         RuntimeConfig {
             deadline_ms: None,
             realtime_speed: 1.0,
+            tracking_cpus: Vec::new(),
+            mapping_cpus: Vec::new(),
         }
     }
 }

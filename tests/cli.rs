@@ -395,3 +395,27 @@ fn bad_drop_and_densify_arguments_are_clear_errors() {
     ]);
     assert!(!ok && err.contains("nope.txt"), "{err}");
 }
+
+#[test]
+fn bench_latency_prints_a_histogram_and_rejects_impossible_cores() {
+    let d = tempfile::tempdir().unwrap();
+    let (ok, out, err) = sdslam(&[
+        "bench",
+        "latency",
+        "synthetic",
+        "--frames",
+        "30",
+        "--no-semidense",
+        "--cores",
+        "0",
+        "--out",
+        d.path().join("o").to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("deadline misses") && out.contains("p99"),
+        "{out}"
+    );
+    let (ok, _, err) = sdslam(&["bench", "latency", "--cores", "100000"]);
+    assert!(!ok && err.contains("--cores"), "{err}");
+}

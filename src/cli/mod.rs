@@ -1,5 +1,6 @@
 //! Subcommands of `sdslam`.
 
+mod bench;
 mod densify;
 mod eval;
 mod features;
@@ -31,6 +32,9 @@ enum Command {
     Run(run::RunArgs),
     /// Semi-dense reconstruction from given poses (offline): semidense.ply, depth maps, report.
     Densify(densify::DensifyArgs),
+    /// Measure the pipeline: `bench latency [SOURCE] [--cores 0,1]`.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
     /// Evaluate results against ground truth.
     #[command(subcommand)]
     Eval(eval::EvalCommand),
@@ -49,6 +53,7 @@ pub fn dispatch(cli: Cli) -> Result<()> {
         Some(Command::Run(a)) => run::run(a),
         Some(Command::Eval(e)) => eval::eval(e),
         Some(Command::Densify(a)) => densify::densify(a),
+        Some(Command::Bench(b)) => bench::bench(b),
         Some(Command::Synth(a)) => synth::synth(a),
         Some(Command::Features(a)) => features::features(a),
         Some(Command::Vocab(v)) => vocab::vocab(v),

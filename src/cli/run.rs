@@ -18,29 +18,29 @@ use super::source;
 pub struct RunArgs {
     /// `synthetic` (default), a TUM RGB-D folder, a EuRoC folder (`mav0`), an image folder with
     /// `times.txt`, or `v4l2:/dev/videoN`.
-    source: Option<String>,
+    pub source: Option<String>,
     /// Calibration file (ORB-SLAM YAML or EuRoC sensor.yaml); a TUM folder's camera.yaml and a
     /// EuRoC folder's sensor.yaml are used by default.
     #[arg(long)]
     calib: Option<PathBuf>,
     /// Output folder.
     #[arg(long, default_value = "out")]
-    out: PathBuf,
+    pub out: PathBuf,
     /// Release frames at their timestamps (a slow pipeline drops the oldest frames).
     #[arg(long)]
-    realtime: bool,
+    pub realtime: bool,
     /// Do not run the semi-dense mapping thread.
     #[arg(long)]
-    no_semidense: bool,
+    pub no_semidense: bool,
     /// Configuration file (TOML); unknown keys are errors.
     #[arg(long)]
-    config: Option<PathBuf>,
+    pub config: Option<PathBuf>,
     /// One thread, fixed seeds: identical results on re-runs.
     #[arg(long)]
     deterministic: bool,
     /// Use only the first N frames.
     #[arg(long)]
-    frames: Option<usize>,
+    pub frames: Option<usize>,
     /// Simulated blackout: frames START..START+COUNT of the source are read but not given to
     /// SLAM (as a covered lens or a dropped link), e.g. `--drop 300:60`.
     #[arg(long, value_parser = parse_drop)]
@@ -69,6 +69,17 @@ impl RunArgs {
 }
 
 pub fn run(a: RunArgs) -> Result<()> {
+    run_with(a).map(|_| ())
+}
+
+/// What a run measured, for `sdslam bench latency`.
+pub struct RunOutcome {
+    pub report: Report,
+    /// Frame arrival to pose out, per frame (evenly thinned on very long runs).
+    pub latencies_ms: Vec<f32>,
+}
+
+pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     let started = Instant::now();
     let mut config = match &a.config {
         Some(p) => Config::load(p)?,
@@ -119,6 +130,14 @@ pub fn run(a: RunArgs) -> Result<()> {
         info.len.unwrap_or(10_000),
         !a.deterministic,
     );
+    // The caller's thread tracks; the mapping threads were pinned (if configured) as they
+    // started.
+    if !sdslam::runtime::pin_current_thread(&config.runtime.tracking_cpus) {
+        eprintln!(
+            "warning: could not pin tracking to CPUs {:?}",
+            config.runtime.tracking_cpus
+        );
+    }
     let mut frame = Frame::new(info.width, info.height);
     let mut undistorted = Frame::new(info.width, info.height);
     let capacity = info.len.unwrap_or(100_000).max(16);
@@ -195,6 +214,10 @@ pub fn run(a: RunArgs) -> Result<()> {
     report.timing_ms.tracking = frame_timer.percentiles();
     report.timing_ms.orb_extraction = system.stats.orb_extraction.percentiles();
     report.timing_ms.local_ba = system.stats.local_mapping.percentiles();
+    report.timing_ms.pose_prediction = system.tracker.t_prediction.percentiles();
+    report.timing_ms.local_map_tracking = system.tracker.t_local_map.percentiles();
+    report.timing_ms.relocalisation = system.tracker.t_relocalisation.percentiles();
+    report.timing_ms.keyframe_insertion = system.stats.keyframe_insertion.percentiles();
     report.tracked_frames = system.stats.tracked_frames;
     report.backfilled_frames = system.stats.backfilled_frames;
     report.lost_episodes = system.tracker.lost_episodes;
@@ -268,8 +291,10 @@ pub fn run(a: RunArgs) -> Result<()> {
         system.state(),
         a.out.display()
     );
-    let _ = TrackingState::Ok;
-    Ok(())
+    Ok(RunOutcome {
+        report,
+        latencies_ms: frame_timer.samples_ms().to_vec(),
+    })
 }
 
 /// Parses `START:COUNT`.

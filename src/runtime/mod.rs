@@ -6,7 +6,7 @@ mod semidense_worker;
 mod system;
 mod timing;
 
-pub use priority::lower_current_thread_priority;
+pub use priority::{lower_current_thread_priority, pin_current_thread};
 pub use report::{Report, TimingReport};
 pub use system::{FrameResult, System, SystemStats};
 pub use timing::{Percentiles, StageTimer};

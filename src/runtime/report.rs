@@ -10,6 +10,14 @@ pub struct TimingReport {
     /// Frame available -> pose out.
     pub tracking: Percentiles,
     pub orb_extraction: Percentiles,
+    /// Motion-model (or reference-keyframe) matching and pose optimisation.
+    pub pose_prediction: Percentiles,
+    pub local_map_tracking: Percentiles,
+    /// On the tracking thread, when a keyframe is made (inline mode: includes local mapping).
+    pub keyframe_insertion: Percentiles,
+    pub relocalisation: Percentiles,
+    /// Local mapping per keyframe (point culling, triangulation, fusion, local BA, keyframe
+    /// culling), on its thread.
     pub local_ba: Percentiles,
     pub loop_closing: Percentiles,
     pub semidense_keyframe: Percentiles,

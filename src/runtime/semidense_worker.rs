@@ -36,12 +36,18 @@ pub(crate) enum SemiDenseWorker {
 }
 
 impl SemiDenseWorker {
-    pub fn spawn(mut mapper: Box<SemiDenseMapper>, map: Arc<Mutex<Map>>, nice: i32) -> Self {
+    pub fn spawn(
+        mut mapper: Box<SemiDenseMapper>,
+        map: Arc<Mutex<Map>>,
+        nice: i32,
+        cpus: Vec<usize>,
+    ) -> Self {
         let (tx, rx) = bounded::<Message>(QUEUE_CAPACITY);
         let handle = std::thread::Builder::new()
             .name("semidense".into())
             .spawn(move || {
                 super::lower_current_thread_priority(nice);
+                super::pin_current_thread(&cpus);
                 while let Ok(m) = rx.recv() {
                     match m {
                         Message::KeyFrame(kf) => mapper.on_keyframe(&map, kf),

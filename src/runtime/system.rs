@@ -49,6 +49,8 @@ pub struct SystemStats {
     pub backfilled_frames: usize,
     pub orb_extraction: StageTimer,
     pub tracking: StageTimer,
+    /// Making a keyframe on the tracking thread (map insertion, observations, database).
+    pub keyframe_insertion: StageTimer,
     pub local_mapping: StageTimer,
 }
 
@@ -117,7 +119,13 @@ impl System {
             ..MapConfig::default()
         })));
         let mapping = if threaded {
-            spawn_mapper(camera, &scales, Arc::clone(&map), expected_frames)
+            spawn_mapper(
+                camera,
+                &scales,
+                Arc::clone(&map),
+                expected_frames,
+                config.runtime.mapping_cpus.clone(),
+            )
         } else {
             Mapping::Inline(Box::new(LocalMapper::new(camera, &scales)))
         };
@@ -137,7 +145,12 @@ impl System {
                 max_features,
             ));
             if threaded {
-                SemiDenseWorker::spawn(mapper, Arc::clone(&map), config.semidense.nice)
+                SemiDenseWorker::spawn(
+                    mapper,
+                    Arc::clone(&map),
+                    config.semidense.nice,
+                    config.semidense.cpus.clone(),
+                )
             } else {
                 SemiDenseWorker::Inline(mapper)
             }
@@ -165,6 +178,7 @@ impl System {
                 backfilled_frames: 0,
                 orb_extraction: StageTimer::with_capacity(expected_frames.max(16)),
                 tracking: StageTimer::with_capacity(expected_frames.max(16)),
+                keyframe_insertion: StageTimer::with_capacity(expected_frames.max(16)),
                 local_mapping: StageTimer::with_capacity(expected_frames.max(16)),
             },
             camera,
@@ -260,7 +274,9 @@ impl System {
                 Mapping::Thread { idle, .. } => idle.load(Ordering::Acquire),
             };
             if st == TrackingState::Ok && self.tracker.need_keyframe(map, &self.frame, idle) {
+                let tk = Instant::now();
                 new_keyframe = self.insert_keyframe(map, gray, rgb, t0);
+                self.stats.keyframe_insertion.record(tk.elapsed());
             }
             if st == TrackingState::Lost && map.n_keyframes() <= 5 {
                 // Lost right after initialisation: start over (ORB-SLAM's policy).
@@ -698,6 +714,7 @@ fn spawn_mapper(
     scales: &[f64],
     map: Arc<Mutex<Map>>,
     expected: usize,
+    cpus: Vec<usize>,
 ) -> Mapping {
     let mut mapper = LocalMapper::new(camera, scales);
     let (tx, rx) = bounded::<KeyFrameId>(8);
@@ -706,6 +723,7 @@ fn spawn_mapper(
     let handle = std::thread::Builder::new()
         .name("local-mapping".into())
         .spawn(move || {
+            crate::runtime::pin_current_thread(&cpus);
             let mut timer = StageTimer::with_capacity(expected.max(16));
             while let Ok(kf) = rx.recv() {
                 idle_t.store(false, Ordering::Release);

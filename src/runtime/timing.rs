@@ -53,6 +53,11 @@ impl StageTimer {
         self.total
     }
 
+    /// The kept samples (every one until the capacity is reached, then evenly thinned).
+    pub fn samples_ms(&self) -> &[f32] {
+        &self.samples_ms
+    }
+
     /// Nearest-rank percentiles over the kept samples; max over all.
     pub fn percentiles(&self) -> Percentiles {
         if self.samples_ms.is_empty() {

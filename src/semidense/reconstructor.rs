@@ -68,8 +68,11 @@ impl KeyframeReconstructor {
                     .num_threads(config.threads)
                     .thread_name(|i| format!("semidense-{i}"))
                     .start_handler({
-                        let nice = config.nice;
-                        move |_| crate::runtime::lower_current_thread_priority(nice)
+                        let (nice, cpus) = (config.nice, config.cpus.clone());
+                        move |_| {
+                            crate::runtime::lower_current_thread_priority(nice);
+                            crate::runtime::pin_current_thread(&cpus);
+                        }
                     })
                     .build()
                     .ok()

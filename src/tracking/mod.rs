@@ -79,6 +79,11 @@ pub struct Tracker {
     pub lost_episodes: usize,
     /// Successful relocalisations.
     pub relocalisations: usize,
+    /// Stage timers: pose prediction and matching (motion model, or the reference keyframe,
+    /// with pose optimisation), local-map tracking, relocalisation attempts.
+    pub t_prediction: crate::runtime::StageTimer,
+    pub t_local_map: crate::runtime::StageTimer,
+    pub t_relocalisation: crate::runtime::StageTimer,
     projected: Vec<ProjectedPoint>,
     proj_ids: Vec<crate::map::MapPointId>,
     /// Per projected point: its keypoint index in the last frame (rotation check).
@@ -112,6 +117,9 @@ impl Tracker {
             last_keyframe_frame: 0,
             lost_episodes: 0,
             relocalisations: 0,
+            t_prediction: crate::runtime::StageTimer::with_capacity(4096),
+            t_local_map: crate::runtime::StageTimer::with_capacity(4096),
+            t_relocalisation: crate::runtime::StageTimer::with_capacity(1024),
             projected: Vec::with_capacity(max_features * 8),
             proj_ids: Vec::with_capacity(max_features * 8),
             proj_kp: Vec::with_capacity(max_features),
@@ -254,6 +262,18 @@ impl Tracker {
         f: &mut TrackedFrame,
         candidates: &[KeyFrameId],
     ) -> TrackingState {
+        let started = std::time::Instant::now();
+        let state = self.relocalise_with(map, f, candidates);
+        self.t_relocalisation.record(started.elapsed());
+        state
+    }
+
+    fn relocalise_with(
+        &mut self,
+        map: &mut Map,
+        f: &mut TrackedFrame,
+        candidates: &[KeyFrameId],
+    ) -> TrackingState {
         let k = self.camera.k();
         let cfg = crate::geometry::pnp::PnpRansacConfig::default();
         for &c in candidates {
@@ -352,15 +372,19 @@ impl Tracker {
 
     /// Tracks `f` (features extracted, matches reset). Updates the motion model and state.
     pub fn track(&mut self, map: &mut Map, f: &mut TrackedFrame) -> TrackingState {
+        let t0 = std::time::Instant::now();
         let mut n = self.track_motion_model(map, f);
         if n < 10 {
             f.reset_matches();
             n = self.track_reference_keyframe(map, f);
         }
+        self.t_prediction.record(t0.elapsed());
         if n >= 10 {
+            let t1 = std::time::Instant::now();
             let mut local = std::mem::take(&mut self.local);
             n = local.track(self, map, f);
             self.local = local;
+            self.t_local_map.record(t1.elapsed());
         }
         let ok = n >= self.config.min_inliers;
         if ok {
