@@ -131,6 +131,9 @@ impl Default for RuntimeConfig {
 pub struct MapCapacityConfig {
     pub max_keyframes: usize,
     pub max_map_points: usize,
+    /// A full bundle adjustment of the map when a run finishes (offline refinement of the
+    /// keyframe poses written to keyframes.txt and used by the cloud).
+    pub final_global_ba: bool,
 }
 
 impl Default for MapCapacityConfig {
@@ -138,6 +141,7 @@ impl Default for MapCapacityConfig {
         MapCapacityConfig {
             max_keyframes: 500,
             max_map_points: 100_000,
+            final_global_ba: true,
         }
     }
 }

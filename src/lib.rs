@@ -12,6 +12,7 @@ pub mod geometry;
 pub mod image;
 pub mod io;
 pub mod local_mapping;
+pub mod loop_closing;
 pub mod map;
 pub mod matching;
 pub mod optimize;

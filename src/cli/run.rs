@@ -222,6 +222,9 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     report.backfilled_frames = system.stats.backfilled_frames;
     report.lost_episodes = system.tracker.lost_episodes;
     report.relocalisations = system.tracker.relocalisations;
+    report.loops_closed = system.stats.loops_closed;
+    report.final_ba_ms = system.stats.final_ba_ms;
+    report.timing_ms.loop_closing = system.stats.loop_closing.percentiles();
     (report.keyframes, report.map_points) = system.map_size();
     let trajectory = system.trajectory();
     let keyframes = system.keyframe_trajectory();

@@ -40,6 +40,11 @@ impl KeyFrameDatabase {
         self.bows.insert(key, bow.clone());
     }
 
+    /// The bag of words stored for `key`.
+    pub fn bow(&self, key: u32) -> Option<&BowVector> {
+        self.bows.get(&key)
+    }
+
     pub fn remove(&mut self, key: u32) {
         if let Some(old) = self.bows.remove(&key) {
             for (w, _) in old {

@@ -56,6 +56,8 @@ pub struct Report {
     pub keyframe_ate_rmse_m: Option<f64>,
     pub deadline_ms: f64,
     pub wall_time_s: f64,
+    /// The final full BA (`[map] final_global_ba`), after the last frame, milliseconds.
+    pub final_ba_ms: f64,
     /// Why the run ended early, if it did (error or interruption); outputs are still written.
     pub stopped_early: Option<String>,
     /// Keyframes reconstructed by semi-dense mapping, and those it skipped (culled before

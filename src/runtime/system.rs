@@ -15,6 +15,7 @@ use crate::eval::TimedPose;
 use crate::features::OrbExtractor;
 use crate::geometry::{CameraFromWorld, Se3, WorldFromCamera};
 use crate::local_mapping::{median_depth, LocalMapper};
+use crate::loop_closing::{LoopCloser, PlaceIndex};
 use crate::map::{KeyFrameId, Map, MapConfig};
 use crate::optimize::{BaObservation, BaOptions, BaProblem, BundleAdjuster};
 use crate::place_recognition::{default_vocabulary, KeyFrameDatabase, Vocabulary};
@@ -49,6 +50,11 @@ pub struct SystemStats {
     pub backfilled_frames: usize,
     pub orb_extraction: StageTimer,
     pub tracking: StageTimer,
+    /// Detection + correction time of each closed loop.
+    pub loop_closing: StageTimer,
+    pub loops_closed: usize,
+    /// Duration of the final full BA (0 when off or not run).
+    pub final_ba_ms: f64,
     /// Making a keyframe on the tracking thread (map insertion, observations, database).
     pub keyframe_insertion: StageTimer,
     pub local_mapping: StageTimer,
@@ -57,11 +63,12 @@ pub struct SystemStats {
 /// Where local mapping runs.
 enum Mapping {
     /// On the tracking thread, right after the keyframe is made (deterministic mode).
-    Inline(Box<LocalMapper>),
+    Inline(Box<(LocalMapper, LoopCloser)>),
     /// On its own thread, fed by a bounded channel; never holds the map during BA.
     Thread {
         tx: Option<Sender<KeyFrameId>>,
-        handle: Option<JoinHandle<StageTimer>>,
+        /// Returns (local-mapping timer, loop-closing timer, loops closed).
+        handle: Option<JoinHandle<(StageTimer, StageTimer, usize)>>,
         idle: Arc<AtomicBool>,
     },
 }
@@ -81,11 +88,13 @@ pub struct System {
     /// Keyframes made while processing the current frame (told to semi-dense mapping after
     /// the map is unlocked).
     fresh_keyframes: heapless::Vec<KeyFrameId, 4>,
+    /// Run a full BA when the run finishes (`[map] final_global_ba`).
+    final_ba: bool,
+    finished: bool,
     /// Place recognition for relocalisation: the vocabulary (the shipped default unless one is
     /// given) and the keyframe database, keyed by keyframe serial.
     vocabulary: Option<Arc<Vocabulary>>,
-    database: KeyFrameDatabase,
-    database_keys: HashMap<u32, KeyFrameId>,
+    places: Arc<Mutex<PlaceIndex>>,
     init: Initializer,
     frame: TrackedFrame,
     trajectory: Vec<TrajectoryEntry>,
@@ -118,6 +127,11 @@ impl System {
             max_map_points: config.map.max_map_points,
             ..MapConfig::default()
         })));
+        let vocabulary = default_vocabulary().ok().map(Arc::new);
+        let places = Arc::new(Mutex::new(PlaceIndex {
+            database: KeyFrameDatabase::new(vocabulary.as_ref().map_or(0, |v| v.n_words())),
+            keys: HashMap::new(),
+        }));
         let mapping = if threaded {
             spawn_mapper(
                 camera,
@@ -125,9 +139,13 @@ impl System {
                 Arc::clone(&map),
                 expected_frames,
                 config.runtime.mapping_cpus.clone(),
+                Arc::clone(&places),
             )
         } else {
-            Mapping::Inline(Box::new(LocalMapper::new(camera, &scales)))
+            Mapping::Inline(Box::new((
+                LocalMapper::new(camera, &scales),
+                LoopCloser::new(camera, &scales),
+            )))
         };
         let semidense = if config.semidense.enabled {
             let k = Intrinsics {
@@ -157,16 +175,15 @@ impl System {
         } else {
             SemiDenseWorker::Off
         };
-        let vocabulary = default_vocabulary().ok().map(Arc::new);
-        let database = KeyFrameDatabase::new(vocabulary.as_ref().map_or(0, |v| v.n_words()));
         System {
             vocabulary,
-            database,
-            database_keys: HashMap::new(),
+            places,
             tracker: Tracker::new(camera, scales.clone(), max_features),
             mapping,
             semidense,
             fresh_keyframes: heapless::Vec::new(),
+            final_ba: config.map.final_global_ba,
+            finished: false,
             init: Initializer::new(max_features, w, h),
             frame: TrackedFrame::new(max_features, w, h),
             trajectory: Vec::with_capacity(expected_frames),
@@ -178,6 +195,9 @@ impl System {
                 backfilled_frames: 0,
                 orb_extraction: StageTimer::with_capacity(expected_frames.max(16)),
                 tracking: StageTimer::with_capacity(expected_frames.max(16)),
+                loop_closing: StageTimer::with_capacity(64),
+                loops_closed: 0,
+                final_ba_ms: 0.0,
                 keyframe_insertion: StageTimer::with_capacity(expected_frames.max(16)),
                 local_mapping: StageTimer::with_capacity(expected_frames.max(16)),
             },
@@ -212,8 +232,10 @@ impl System {
         if let Mapping::Thread { tx, handle, idle } = &mut self.mapping {
             tx.take();
             ok = match handle.take().map(|h| h.join()) {
-                Some(Ok(timer)) => {
+                Some(Ok((timer, loops, closed))) => {
                     self.stats.local_mapping = timer;
+                    self.stats.loop_closing = loops;
+                    self.stats.loops_closed = closed;
                     true
                 }
                 Some(Err(_)) => false,
@@ -221,6 +243,18 @@ impl System {
             };
             idle.store(true, Ordering::Release);
         }
+        // Final full BA (every keyframe and point; the first keyframe fixed) before the last
+        // semi-dense keyframes are reconstructed, so they and the cloud use the refined poses.
+        if self.final_ba && !self.finished {
+            let map_arc = Arc::clone(&self.map);
+            let mut m = lock(&map_arc);
+            if m.n_keyframes() >= 3 {
+                let t = Instant::now();
+                self.global_ba(&mut m, 15);
+                self.stats.final_ba_ms = t.elapsed().as_secs_f64() * 1e3;
+            }
+        }
+        self.finished = true;
         ok &= self.semidense.finish(&self.map);
         ok
     }
@@ -324,14 +358,17 @@ impl System {
             return TrackingState::Lost;
         };
         let (bow, _) = v.transform(&self.frame.features.descriptors, 2);
-        let hits = self.database.query(&bow, 0.0, 10, |_| false);
-        let mut candidates = Vec::with_capacity(hits.len());
-        for (key, _) in hits {
-            match self.database_keys.get(&key) {
-                Some(&kf) if map.keyframe(kf).is_some() => candidates.push(kf),
-                _ => {
-                    self.database.remove(key);
-                    self.database_keys.remove(&key);
+        let mut candidates = Vec::new();
+        {
+            let mut places = self.places.lock().unwrap_or_else(|e| e.into_inner());
+            let hits = places.database.query(&bow, 0.0, 10, |_| false);
+            for (key, _) in hits {
+                match places.keys.get(&key) {
+                    Some(&kf) if map.keyframe(kf).is_some() => candidates.push(kf),
+                    _ => {
+                        places.database.remove(key);
+                        places.keys.remove(&key);
+                    }
                 }
             }
         }
@@ -345,14 +382,19 @@ impl System {
         };
         let (bow, _) = v.transform(&k.descriptors, 2);
         let key = k.serial as u32;
-        self.database.add(key, &bow);
-        self.database_keys.insert(key, kf);
+        let mut places = self.places.lock().unwrap_or_else(|e| e.into_inner());
+        places.database.add(key, &bow);
+        places.keys.insert(key, kf);
     }
 
     fn reset(&mut self, map: &mut Map) {
         map.reset();
-        self.database = KeyFrameDatabase::new(self.vocabulary.as_ref().map_or(0, |v| v.n_words()));
-        self.database_keys.clear();
+        {
+            let n = self.vocabulary.as_ref().map_or(0, |v| v.n_words());
+            let mut places = self.places.lock().unwrap_or_else(|e| e.into_inner());
+            places.database = KeyFrameDatabase::new(n);
+            places.keys.clear();
+        }
         self.semidense.reset();
         self.tracker.state = TrackingState::NotInitialised;
         self.tracker.reference_kf = None;
@@ -574,12 +616,20 @@ impl System {
         for (i, mp) in obs {
             map.add_observation(mp, kf, i);
         }
+        self.index_keyframe(map, kf);
         match &mut self.mapping {
-            Mapping::Inline(mapper) => {
+            Mapping::Inline(m) => {
                 self.stats.tracking.record(t0.elapsed());
                 let tm = Instant::now();
+                let (mapper, closer) = &mut **m;
                 mapper.process(map, kf);
                 self.stats.local_mapping.record(tm.elapsed());
+                let places = self.places.lock().unwrap_or_else(|e| e.into_inner());
+                let tl = Instant::now();
+                if closer.process(map, &places, kf).is_some() {
+                    self.stats.loop_closing.record(tl.elapsed());
+                }
+                self.stats.loops_closed = closer.loops_closed;
             }
             Mapping::Thread { tx, idle, .. } => {
                 idle.store(false, Ordering::Release);
@@ -601,7 +651,6 @@ impl System {
         self.tracker.last_keyframe_frame = self.frame.index;
         self.stats.keyframes_created += 1;
         let _ = self.fresh_keyframes.push(kf);
-        self.index_keyframe(map, kf);
         true
     }
 
@@ -715,8 +764,10 @@ fn spawn_mapper(
     map: Arc<Mutex<Map>>,
     expected: usize,
     cpus: Vec<usize>,
+    places: Arc<Mutex<PlaceIndex>>,
 ) -> Mapping {
     let mut mapper = LocalMapper::new(camera, scales);
+    let mut closer = LoopCloser::new(camera, scales);
     let (tx, rx) = bounded::<KeyFrameId>(8);
     let idle = Arc::new(AtomicBool::new(true));
     let idle_t = Arc::clone(&idle);
@@ -725,6 +776,7 @@ fn spawn_mapper(
         .spawn(move || {
             crate::runtime::pin_current_thread(&cpus);
             let mut timer = StageTimer::with_capacity(expected.max(16));
+            let mut loop_timer = StageTimer::with_capacity(64);
             while let Ok(kf) = rx.recv() {
                 idle_t.store(false, Ordering::Release);
                 let t = Instant::now();
@@ -734,9 +786,17 @@ fn spawn_mapper(
                 }
                 mapper.finish(&mut lock(&map), kf);
                 timer.record(t.elapsed());
+                {
+                    let mut m = lock(&map);
+                    let p = places.lock().unwrap_or_else(|e| e.into_inner());
+                    let tl = Instant::now();
+                    if closer.process(&mut m, &p, kf).is_some() {
+                        loop_timer.record(tl.elapsed());
+                    }
+                }
                 idle_t.store(rx.is_empty(), Ordering::Release);
             }
-            timer
+            (timer, loop_timer, closer.loops_closed)
         })
         .ok();
     match handle {
@@ -746,9 +806,9 @@ fn spawn_mapper(
             idle,
         },
         // No thread could be started: fall back to inline mapping (still correct).
-        None => Mapping::Inline(Box::new(LocalMapper::new(
-            PinholeRadtan::pinhole(1.0, 1.0, 0.0, 0.0, 1, 1),
-            &[1.0],
+        None => Mapping::Inline(Box::new((
+            LocalMapper::new(camera, scales),
+            LoopCloser::new(camera, scales),
         ))),
     }
 }

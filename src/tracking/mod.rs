@@ -75,6 +75,9 @@ pub struct Tracker {
     pub last: TrackedFrame,
     pub velocity: Option<Se3>,
     pub reference_kf: Option<KeyFrameId>,
+    /// The reference keyframe's pose when the last frame was tracked: if the map moves it
+    /// (local BA, loop correction), the last pose is re-based on it before predicting.
+    pub reference_pose: Option<(KeyFrameId, CameraFromWorld)>,
     pub last_keyframe_frame: u64,
     pub lost_episodes: usize,
     /// Successful relocalisations.
@@ -114,6 +117,7 @@ impl Tracker {
             last: TrackedFrame::new(max_features, w, h),
             velocity: None,
             reference_kf: None,
+            reference_pose: None,
             last_keyframe_frame: 0,
             lost_episodes: 0,
             relocalisations: 0,
@@ -251,6 +255,23 @@ impl Tracker {
         self.optimize_pose(map, f)
     }
 
+    /// When the reference keyframe moved since the last frame (a loop correction), moves the
+    /// last frame's pose with it so the motion model predicts in the corrected map.
+    fn rebase_last_frame(&mut self, map: &Map) {
+        let Some((r, old)) = self.reference_pose else {
+            return;
+        };
+        let Some(new) = map.keyframe(r).map(|k| k.t_cw) else {
+            return;
+        };
+        let moved = (new.0.translation.vector - old.0.translation.vector).norm()
+            + new.0.rotation.angle_to(&old.0.rotation);
+        if moved > 1e-2 {
+            let t_c_ref = self.last.t_cw.0 * old.0.inverse();
+            self.last.t_cw = CameraFromWorld(t_c_ref * new.0);
+        }
+    }
+
     /// Relocalisation (tracking lost): for each candidate keyframe (from the place-recognition
     /// database, best first) match its map points to `f` by descriptor (ratio 0.75, rotation
     /// consistency), solve EPnP-RANSAC on >= 15 matches, optimise the pose on the inliers and,
@@ -373,6 +394,7 @@ impl Tracker {
     /// Tracks `f` (features extracted, matches reset). Updates the motion model and state.
     pub fn track(&mut self, map: &mut Map, f: &mut TrackedFrame) -> TrackingState {
         let t0 = std::time::Instant::now();
+        self.rebase_last_frame(map);
         let mut n = self.track_motion_model(map, f);
         if n < 10 {
             f.reset_matches();
@@ -387,6 +409,9 @@ impl Tracker {
             self.t_local_map.record(t1.elapsed());
         }
         let ok = n >= self.config.min_inliers;
+        self.reference_pose = self
+            .reference_kf
+            .and_then(|r| map.keyframe(r).map(|k| (r, k.t_cw)));
         if ok {
             self.velocity = Some(f.t_cw.0 * self.last.t_cw.0.inverse());
             self.state = TrackingState::Ok;

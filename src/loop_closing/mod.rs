@@ -1,0 +1,560 @@
+//! Loop closing (ORB-SLAM, after Mur-Artal et al. 2015): a keyframe's bag of words finds
+//! candidates in the keyframe database scoring above its worst covisible neighbour; a
+//! candidate is accepted when candidates of 3 consecutive keyframes are covisibility-
+//! consistent; the similarity between the keyframe and the candidate comes from matched map
+//! points (Sim3 RANSAC, then more matches by projection, >= 40); the keyframe and its
+//! neighbours are corrected by it, duplicated points fused, and the essential graph optimised
+//! as a Sim3 pose graph with the loop keyframe fixed, moving every keyframe and point.
+
+use std::collections::{HashMap, HashSet};
+
+use nalgebra::{Matrix3, Vector2};
+
+use crate::camera_model::PinholeRadtan;
+use crate::features::Descriptor;
+use crate::geometry::sim3::{sim3_ransac, Sim3Matches, Sim3RansacConfig};
+use crate::geometry::{CameraFromWorld, Se3, Sim3};
+use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::matching::hamming;
+use crate::optimize::lie::sim3_compose;
+use crate::optimize::{PoseGraph, PoseGraphEdge};
+use crate::place_recognition::{l1_score, BowVector, KeyFrameDatabase};
+
+/// Published parameters (ORB-SLAM's loop closing).
+#[derive(Clone, Debug)]
+pub struct LoopClosingConfig {
+    /// Consecutive keyframes whose candidates must be consistent.
+    pub covisibility_consistency: usize,
+    /// Keyframes since the last loop (and in the map) before detecting a new one.
+    pub min_keyframes_between_loops: usize,
+    /// Map-point matches needed after the projection search.
+    pub min_matches: usize,
+    /// Pose-graph iterations and covisibility weight of essential-graph edges.
+    pub pose_graph_iterations: usize,
+}
+
+impl Default for LoopClosingConfig {
+    fn default() -> Self {
+        LoopClosingConfig {
+            covisibility_consistency: 3,
+            min_keyframes_between_loops: 10,
+            min_matches: 40,
+            pose_graph_iterations: 20,
+        }
+    }
+}
+
+/// The place-recognition index shared by tracking (adds keyframes, relocalises) and loop
+/// closing: the database keyed by keyframe serial, and serial -> keyframe.
+#[derive(Default)]
+pub struct PlaceIndex {
+    pub database: KeyFrameDatabase,
+    pub keys: HashMap<u32, KeyFrameId>,
+}
+
+/// What a closed loop did.
+#[derive(Clone, Debug)]
+pub struct LoopReport {
+    pub keyframe: KeyFrameId,
+    pub loop_keyframe: KeyFrameId,
+    pub matches: usize,
+    pub fused_points: usize,
+}
+
+pub struct LoopCloser {
+    pub config: LoopClosingConfig,
+    camera: PinholeRadtan,
+    k: Matrix3<f64>,
+    sigma2: Vec<f64>,
+    /// Consistent groups of the previous keyframe: (group, consistency count).
+    groups: Vec<(HashSet<KeyFrameId>, usize)>,
+    last_loop_serial: u64,
+    pub loops_closed: usize,
+}
+
+impl LoopCloser {
+    pub fn new(camera: PinholeRadtan, scales: &[f64]) -> Self {
+        LoopCloser {
+            config: LoopClosingConfig::default(),
+            k: camera.k(),
+            camera,
+            sigma2: scales.iter().map(|s| s * s).collect(),
+            groups: Vec::new(),
+            last_loop_serial: 0,
+            loops_closed: 0,
+        }
+    }
+
+    /// Detects and closes a loop at keyframe `kf` (just mapped). `index` gives its bag of words
+    /// and the candidates.
+    pub fn process(
+        &mut self,
+        map: &mut Map,
+        index: &PlaceIndex,
+        kf: KeyFrameId,
+    ) -> Option<LoopReport> {
+        let candidates = self.detect(map, index, kf)?;
+        for c in candidates {
+            if let Some(r) = self.close(map, kf, c) {
+                self.loops_closed += 1;
+                self.groups.clear();
+                self.last_loop_serial = map.keyframe(kf).map_or(0, |k| k.serial);
+                return Some(r);
+            }
+        }
+        None
+    }
+
+    /// Candidates consistent over `covisibility_consistency` consecutive keyframes.
+    fn detect(&mut self, map: &Map, index: &PlaceIndex, kf: KeyFrameId) -> Option<Vec<KeyFrameId>> {
+        let k = map.keyframe(kf)?;
+        if map.n_keyframes() < self.config.min_keyframes_between_loops
+            || k.serial < self.last_loop_serial + self.config.min_keyframes_between_loops as u64
+        {
+            return None;
+        }
+        let key = k.serial as u32;
+        let bow: &BowVector = index.database.bow(key)?;
+        let connected: HashSet<KeyFrameId> = k.covisibles.iter().map(|&(c, _)| c).collect();
+        let mut min_score = 1.0f32;
+        for c in &connected {
+            if let Some(b) = map
+                .keyframe(*c)
+                .and_then(|ck| index.database.bow(ck.serial as u32))
+            {
+                min_score = min_score.min(l1_score(bow, b));
+            }
+        }
+        let hits = index.database.query(bow, min_score, 50, |h| {
+            h == key
+                || index
+                    .keys
+                    .get(&h)
+                    .is_none_or(|id| connected.contains(id) || map.keyframe(*id).is_none())
+        });
+        // ORB-SLAM's accumulated score: a candidate's group (it and its 10 best covisibles
+        // among the hits) sums their scores; the best keyframe of each group above 0.75 of
+        // the best group score goes on.
+        let score: HashMap<KeyFrameId, f32> = hits
+            .iter()
+            .filter_map(|&(h, s)| index.keys.get(&h).map(|&id| (id, s)))
+            .collect();
+        let mut groups_acc: Vec<(KeyFrameId, f32)> = Vec::new();
+        for (&id, &s0) in &score {
+            let Some(ck) = map.keyframe(id) else { continue };
+            let (mut acc, mut best, mut best_id) = (s0, s0, id);
+            for (n, _) in ck.covisibles.iter().take(10) {
+                if let Some(&sn) = score.get(n) {
+                    acc += sn;
+                    if sn > best {
+                        best = sn;
+                        best_id = *n;
+                    }
+                }
+            }
+            groups_acc.push((best_id, acc));
+        }
+        let best_acc = groups_acc.iter().map(|g| g.1).fold(0.0f32, f32::max);
+        let mut hits: Vec<KeyFrameId> = groups_acc
+            .iter()
+            .filter(|g| g.1 > 0.75 * best_acc)
+            .map(|g| g.0)
+            .collect();
+        hits.sort();
+        hits.dedup();
+        if debug() {
+            let h: Vec<(u64, f32)> = hits
+                .iter()
+                .filter_map(|c| {
+                    map.keyframe(*c)
+                        .map(|x| (x.serial, score.get(c).copied().unwrap_or(0.0)))
+                })
+                .collect();
+            eprintln!("loop: candidates {h:?} of {} scored", score.len());
+        }
+        let mut current: Vec<(HashSet<KeyFrameId>, usize)> = Vec::new();
+        let mut accepted = Vec::new();
+        for cand in hits {
+            let Some(ck) = map.keyframe(cand) else {
+                continue;
+            };
+            let mut group: HashSet<KeyFrameId> = ck.covisibles.iter().map(|&(c, _)| c).collect();
+            group.insert(cand);
+            let mut best = 0;
+            for (g, n) in &self.groups {
+                if !g.is_disjoint(&group) {
+                    best = best.max(*n + 1);
+                }
+            }
+            let count = best.max(1);
+            if count >= self.config.covisibility_consistency {
+                accepted.push(cand);
+            }
+            current.push((group, count));
+        }
+        self.groups = current;
+        if debug() {
+            let acc: Vec<u64> = accepted
+                .iter()
+                .filter_map(|a| map.keyframe(*a).map(|x| x.serial))
+                .collect();
+            let mut conn: Vec<u64> = connected
+                .iter()
+                .filter_map(|c| map.keyframe(*c).map(|x| x.serial))
+                .collect();
+            conn.sort();
+            eprintln!(
+                "loop: kf {} min_score {min_score:.3} groups {} accepted {acc:?} connected {conn:?}",
+                k.serial,
+                self.groups.len(),
+            );
+        }
+        (!accepted.is_empty()).then_some(accepted)
+    }
+
+    /// Sim3 between `kf` and candidate `c`, more matches by projection, then the correction.
+    fn close(&mut self, map: &mut Map, kf: KeyFrameId, c: KeyFrameId) -> Option<LoopReport> {
+        let (k1, k2) = (map.keyframe(kf)?, map.keyframe(c)?);
+        // Map points of both keyframes matched by descriptor (ratio 0.75, unique).
+        let pts2: Vec<(usize, MapPointId)> = k2.observed().collect();
+        let mut pairs: Vec<(usize, usize, MapPointId, MapPointId)> = Vec::new();
+        let mut taken: HashSet<usize> = HashSet::new();
+        for (i, mp1) in k1.observed() {
+            let d1: &Descriptor = &k1.descriptors[i];
+            let (mut b, mut s, mut bj) = (u32::MAX, u32::MAX, usize::MAX);
+            for (jj, &(j, _)) in pts2.iter().enumerate() {
+                let d = hamming(d1, &k2.descriptors[j]);
+                if d < b {
+                    s = b;
+                    b = d;
+                    bj = jj;
+                } else if d < s {
+                    s = d;
+                }
+            }
+            if bj != usize::MAX && b <= 50 && (b as f32) < 0.75 * s as f32 && taken.insert(bj) {
+                let (j, mp2) = pts2[bj];
+                if mp1 != mp2 {
+                    pairs.push((i, j, mp1, mp2));
+                }
+            }
+        }
+        if debug() {
+            eprintln!("loop: {} descriptor pairs", pairs.len());
+        }
+        if pairs.len() < 20 {
+            return None;
+        }
+        let (t1, t2) = (k1.t_cw, k2.t_cw);
+        let mut p1 = Vec::with_capacity(pairs.len());
+        let mut p2 = Vec::with_capacity(pairs.len());
+        let (mut u1, mut u2, mut s1, mut s2) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for &(i, j, a, b) in &pairs {
+            let (pa, pb) = (map.point(a)?, map.point(b)?);
+            p1.push(t1.transform(&pa.position));
+            p2.push(t2.transform(&pb.position));
+            let (ka, kb) = (&k1.keypoints[i], &k2.keypoints[j]);
+            u1.push(Vector2::new(ka.ux as f64, ka.uy as f64));
+            u2.push(Vector2::new(kb.ux as f64, kb.uy as f64));
+            s1.push(self.sigma2[ka.octave as usize]);
+            s2.push(self.sigma2[kb.octave as usize]);
+        }
+        let m = Sim3Matches {
+            p1: &p1,
+            u1: &u1,
+            sigma2_1: &s1,
+            p2: &p2,
+            u2: &u2,
+            sigma2_2: &s2,
+        };
+        let sol = sim3_ransac(&m, &self.k, &self.k, &Sim3RansacConfig::default())?;
+        // S_cw of the current keyframe as the loop side sees it: S_12 * T_2w.
+        let s_cw = sim3_compose(&sol.s12, &se3_to_sim3(&t2.0));
+        // More matches: the loop keyframe's neighbourhood projected with S_cw.
+        let mut loop_points: Vec<MapPointId> = Vec::new();
+        let mut seen = HashSet::new();
+        let group: Vec<KeyFrameId> = std::iter::once(c)
+            .chain(k2.covisibles.iter().map(|&(x, _)| x))
+            .collect();
+        for g in &group {
+            if let Some(gk) = map.keyframe(*g) {
+                for (_, p) in gk.observed() {
+                    if seen.insert(p) {
+                        loop_points.push(p);
+                    }
+                }
+            }
+        }
+        let mut matched: Vec<Option<MapPointId>> = vec![None; k1.keypoints.len()];
+        for (m_i, &(i, _, _, mp2)) in pairs.iter().enumerate() {
+            if sol.inliers[m_i] {
+                matched[i] = Some(mp2);
+            }
+        }
+        let already: HashSet<MapPointId> = matched.iter().flatten().copied().collect();
+        let mut area = Vec::new();
+        for &p in &loop_points {
+            if already.contains(&p) {
+                continue;
+            }
+            let Some(mp) = map.point(p) else { continue };
+            let pc = s_cw.transform(&mp.position);
+            let Some(uv) = self.camera.project(&pc) else {
+                continue;
+            };
+            if !self.camera.in_image(uv.x, uv.y, 0.0) {
+                continue;
+            }
+            let level = mp.predict_level(
+                pc.norm() / s_cw.scale,
+                map.config.scale_factor,
+                map.config.n_levels,
+            );
+            let r = 8.0 * self.sigma2[level].sqrt();
+            let mut best = (u32::MAX, usize::MAX);
+            let (lo, hi) = (level.saturating_sub(1) as u8, (level + 1) as u8);
+            k1.grid.in_area(
+                &k1.keypoints,
+                uv.x as f32,
+                uv.y as f32,
+                r as f32,
+                lo,
+                hi,
+                &mut area,
+            );
+            for &i in &area {
+                let i = i as usize;
+                if matched[i].is_some() {
+                    continue;
+                }
+                let d = hamming(&mp.descriptor, &k1.descriptors[i]);
+                if d < best.0 {
+                    best = (d, i);
+                }
+            }
+            if best.0 <= 50 {
+                matched[best.1] = Some(p);
+            }
+        }
+        let n_matches = matched.iter().filter(|m| m.is_some()).count();
+        if debug() {
+            eprintln!(
+                "loop: sim3 {} inliers, scale {:.3}, t {:?} angle {:.2} deg, {n_matches} matches after projection",
+                sol.n_inliers, sol.s12.scale, sol.s12.translation, sol.s12.rotation.angle().to_degrees()
+            );
+        }
+        if n_matches < self.config.min_matches {
+            return None;
+        }
+        Some(self.correct(map, kf, c, &s_cw, &matched, n_matches))
+    }
+
+    /// Corrects the current keyframe's neighbourhood with `s_cw`, fuses the loop matches, adds
+    /// the loop edge and optimises the essential graph.
+    fn correct(
+        &mut self,
+        map: &mut Map,
+        kf: KeyFrameId,
+        loop_kf: KeyFrameId,
+        s_cw: &Sim3,
+        matched: &[Option<MapPointId>],
+        n_matches: usize,
+    ) -> LoopReport {
+        let before: HashMap<KeyFrameId, Sim3> = map
+            .keyframes()
+            .map(|(id, k)| (id, se3_to_sim3(&k.t_cw.0)))
+            .collect();
+        let t_wc = before[&kf].inverse();
+        // Corrected S_iw for the current keyframe and its neighbours.
+        let mut corrected: HashMap<KeyFrameId, Sim3> = HashMap::new();
+        let neighbours: Vec<KeyFrameId> = map
+            .keyframe(kf)
+            .map(|k| k.covisibles.iter().map(|&(x, _)| x).collect())
+            .unwrap_or_default();
+        corrected.insert(kf, *s_cw);
+        for &n in &neighbours {
+            if let Some(s_iw) = before.get(&n) {
+                let s_ic = sim3_compose(s_iw, &t_wc);
+                corrected.insert(n, sim3_compose(&s_ic, s_cw));
+            }
+        }
+        // Points seen by the corrected keyframes move with them (and later with that keyframe
+        // in the pose graph step).
+        let mut moved: HashMap<MapPointId, KeyFrameId> = HashMap::new();
+        for (&id, s_new) in &corrected {
+            let pts: Vec<MapPointId> = map
+                .keyframe(id)
+                .map(|k| k.observed().map(|(_, p)| p).collect())
+                .unwrap_or_default();
+            let s_old = before[&id];
+            for p in pts {
+                if moved.contains_key(&p) {
+                    continue;
+                }
+                moved.insert(p, id);
+                if let Some(mp) = map.point_mut(p) {
+                    mp.position = s_new.inverse().transform(&s_old.transform(&mp.position));
+                }
+            }
+        }
+        for (&id, s_new) in &corrected {
+            if let Some(k) = map.keyframe_mut(id) {
+                k.t_cw = sim3_to_camera(s_new);
+            }
+        }
+        if debug() {
+            let c_before = before[&kf].inverse().translation;
+            let c_after = s_cw.inverse().translation;
+            let c_loop = before[&loop_kf].inverse().translation;
+            eprintln!("loop: centre before {c_before:?} after {c_after:?} loop kf {c_loop:?}");
+        }
+        for &p in moved.keys() {
+            map.update_point_geometry(p);
+        }
+        // Loop fusion: the loop side's points replace the current side's duplicates.
+        let mut fused = 0;
+        for (i, m) in matched.iter().enumerate() {
+            let Some(loop_p) = *m else { continue };
+            if map.point(loop_p).is_none() {
+                continue;
+            }
+            match map.keyframe(kf).and_then(|k| k.points[i]) {
+                Some(cur) if cur != loop_p => {
+                    map.replace_point(cur, loop_p);
+                    fused += 1;
+                }
+                Some(_) => {}
+                None => {
+                    map.add_observation(loop_p, kf, i);
+                    map.update_point_geometry(loop_p);
+                }
+            }
+        }
+        if let Some(k) = map.keyframe_mut(kf) {
+            if !k.loop_edges.contains(&loop_kf) {
+                k.loop_edges.push(loop_kf);
+            }
+        }
+        if let Some(k) = map.keyframe_mut(loop_kf) {
+            if !k.loop_edges.contains(&kf) {
+                k.loop_edges.push(kf);
+            }
+        }
+        for &n in neighbours.iter().chain([kf, loop_kf].iter()) {
+            map.update_connections(n);
+        }
+        self.optimize_essential_graph(map, &before, &corrected, &moved, loop_kf);
+        LoopReport {
+            keyframe: kf,
+            loop_keyframe: loop_kf,
+            matches: n_matches,
+            fused_points: fused,
+        }
+    }
+
+    /// Sim3 pose graph over the essential graph: edges measured from the poses before the
+    /// correction, except those between corrected keyframes and the rest (the new loop
+    /// links), measured after it; the loop keyframe is fixed. Keyframes and points are then
+    /// moved with their keyframe's (reference keyframe's) correction.
+    fn optimize_essential_graph(
+        &mut self,
+        map: &mut Map,
+        before: &HashMap<KeyFrameId, Sim3>,
+        corrected: &HashMap<KeyFrameId, Sim3>,
+        moved_by: &HashMap<MapPointId, KeyFrameId>,
+        fixed: KeyFrameId,
+    ) {
+        let mut loop_side: HashSet<KeyFrameId> = map
+            .keyframe(fixed)
+            .map(|k| k.covisibles.iter().map(|&(c, _)| c).collect())
+            .unwrap_or_default();
+        loop_side.insert(fixed);
+        for c in corrected.keys() {
+            loop_side.remove(c);
+        }
+        let ids: Vec<KeyFrameId> = map.keyframes().map(|(id, _)| id).collect();
+        let index: HashMap<KeyFrameId, u32> = ids
+            .iter()
+            .enumerate()
+            .map(|(i, &id)| (id, i as u32))
+            .collect();
+        let now = |id: &KeyFrameId| corrected.get(id).or_else(|| before.get(id)).copied();
+        let poses: Vec<Sim3> = ids
+            .iter()
+            .map(|id| now(id).unwrap_or(Sim3::identity()))
+            .collect();
+        let fixed_flags: Vec<bool> = ids.iter().map(|&id| id == fixed).collect();
+        let mut edges = Vec::new();
+        for (a, b) in map.essential_edges() {
+            let (Some(&ia), Some(&ib)) = (index.get(&a), index.get(&b)) else {
+                continue;
+            };
+            // New loop links (a corrected keyframe and the loop side): the relative pose after
+            // the correction; every other edge: as it was before it.
+            let is_loop_link = (corrected.contains_key(&a) && loop_side.contains(&b))
+                || (corrected.contains_key(&b) && loop_side.contains(&a));
+            let (sa, sb) = if is_loop_link {
+                (Some(&poses[ia as usize]), Some(&poses[ib as usize]))
+            } else {
+                (before.get(&a), before.get(&b))
+            };
+            let (Some(sa), Some(sb)) = (sa, sb) else {
+                continue;
+            };
+            edges.push(PoseGraphEdge {
+                i: ia,
+                j: ib,
+                s_ji: sim3_compose(sb, &sa.inverse()),
+                weight: 1.0,
+            });
+        }
+        let mut g = PoseGraph::new(poses.clone(), fixed_flags, edges);
+        g.optimize(self.config.pose_graph_iterations);
+        // Points: moved with their reference keyframe (from its pose before this step).
+        let pts: Vec<(MapPointId, Option<KeyFrameId>)> =
+            map.points().map(|(id, p)| (id, p.reference_kf)).collect();
+        for (p, r) in pts {
+            let Some(r) = moved_by.get(&p).copied().or(r).or_else(|| {
+                map.point(p)
+                    .and_then(|mp| mp.observations.first().map(|&(k, _)| k))
+            }) else {
+                continue;
+            };
+            let Some(&ir) = index.get(&r) else { continue };
+            let (s_old, s_new) = (poses[ir as usize], g.poses[ir as usize]);
+            if let Some(mp) = map.point_mut(p) {
+                mp.position = s_new.inverse().transform(&s_old.transform(&mp.position));
+            }
+        }
+        for (i, &id) in ids.iter().enumerate() {
+            if let Some(k) = map.keyframe_mut(id) {
+                k.t_cw = sim3_to_camera(&g.poses[i]);
+            }
+        }
+        let all: Vec<MapPointId> = map.points().map(|(id, _)| id).collect();
+        for p in all {
+            map.update_point_geometry(p);
+        }
+    }
+}
+
+fn se3_to_sim3(t: &Se3) -> Sim3 {
+    Sim3 {
+        scale: 1.0,
+        rotation: t.rotation,
+        translation: t.translation.vector,
+    }
+}
+
+/// The rigid pose of a similarity `S_cw` (translation divided by the scale; ORB-SLAM's
+/// `[R t/s]`).
+fn sim3_to_camera(s: &Sim3) -> CameraFromWorld {
+    CameraFromWorld(Se3::from_parts(
+        nalgebra::Translation3::from(s.translation / s.scale),
+        s.rotation,
+    ))
+}
+
+fn debug() -> bool {
+    std::env::var_os("SDSLAM_LOOP_DEBUG").is_some()
+}
