@@ -104,11 +104,21 @@ fn a_drifted_loop_is_detected_and_corrected() {
         .collect();
     let mut closer = LoopCloser::new(cam, &scales);
     let mut closed = None;
+    let mut detection_ms = Vec::new();
     for &k in &kfs[n - 12..] {
-        if let Some(r) = closer.process(&mut map, &index, k) {
+        let t = std::time::Instant::now();
+        let r = closer.process(&mut map, &index, k);
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        if let Some(r) = r {
+            eprintln!("loop detection + correction: {ms:.1} ms");
             closed = Some(r);
             break;
         }
+        detection_ms.push(ms);
+    }
+    detection_ms.sort_by(|a, b| a.total_cmp(b));
+    if let Some(m) = detection_ms.get(detection_ms.len() / 2) {
+        eprintln!("loop detection without a loop: median {m:.2} ms per keyframe");
     }
     let r = closed.expect("no loop closed at the end of the orbit");
     let loop_slot = slot[&r.loop_keyframe];
