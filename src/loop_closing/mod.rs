@@ -162,16 +162,6 @@ impl LoopCloser {
             .collect();
         hits.sort();
         hits.dedup();
-        if debug() {
-            let h: Vec<(u64, f32)> = hits
-                .iter()
-                .filter_map(|c| {
-                    map.keyframe(*c)
-                        .map(|x| (x.serial, score.get(c).copied().unwrap_or(0.0)))
-                })
-                .collect();
-            eprintln!("loop: candidates {h:?} of {} scored", score.len());
-        }
         let mut current: Vec<(HashSet<KeyFrameId>, usize)> = Vec::new();
         let mut accepted = Vec::new();
         for cand in hits {
@@ -193,22 +183,6 @@ impl LoopCloser {
             current.push((group, count));
         }
         self.groups = current;
-        if debug() {
-            let acc: Vec<u64> = accepted
-                .iter()
-                .filter_map(|a| map.keyframe(*a).map(|x| x.serial))
-                .collect();
-            let mut conn: Vec<u64> = connected
-                .iter()
-                .filter_map(|c| map.keyframe(*c).map(|x| x.serial))
-                .collect();
-            conn.sort();
-            eprintln!(
-                "loop: kf {} min_score {min_score:.3} groups {} accepted {acc:?} connected {conn:?}",
-                k.serial,
-                self.groups.len(),
-            );
-        }
         (!accepted.is_empty()).then_some(accepted)
     }
 
@@ -238,9 +212,6 @@ impl LoopCloser {
                     pairs.push((i, j, mp1, mp2));
                 }
             }
-        }
-        if debug() {
-            eprintln!("loop: {} descriptor pairs", pairs.len());
         }
         if pairs.len() < 20 {
             return None;
@@ -337,12 +308,6 @@ impl LoopCloser {
             }
         }
         let n_matches = matched.iter().filter(|m| m.is_some()).count();
-        if debug() {
-            eprintln!(
-                "loop: sim3 {} inliers, scale {:.3}, t {:?} angle {:.2} deg, {n_matches} matches after projection",
-                sol.n_inliers, sol.s12.scale, sol.s12.translation, sol.s12.rotation.angle().to_degrees()
-            );
-        }
         if n_matches < self.config.min_matches {
             return None;
         }
@@ -401,12 +366,6 @@ impl LoopCloser {
             if let Some(k) = map.keyframe_mut(id) {
                 k.t_cw = sim3_to_camera(s_new);
             }
-        }
-        if debug() {
-            let c_before = before[&kf].inverse().translation;
-            let c_after = s_cw.inverse().translation;
-            let c_loop = before[&loop_kf].inverse().translation;
-            eprintln!("loop: centre before {c_before:?} after {c_after:?} loop kf {c_loop:?}");
         }
         for &p in moved.keys() {
             map.update_point_geometry(p);
@@ -553,8 +512,4 @@ fn sim3_to_camera(s: &Sim3) -> CameraFromWorld {
         nalgebra::Translation3::from(s.translation / s.scale),
         s.rotation,
     ))
-}
-
-fn debug() -> bool {
-    std::env::var_os("SDSLAM_LOOP_DEBUG").is_some()
 }

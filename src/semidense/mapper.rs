@@ -249,16 +249,6 @@ impl SemiDenseMapper {
         self.stats.busy_s += t0.elapsed().as_secs_f64();
         self.t_depth.record(times.depth);
         self.t_intra.record(times.intra);
-        if std::env::var_os("SDSLAM_SEMIDENSE_DEBUG").is_some() {
-            eprintln!(
-                "semidense kf {timestamp:.3}: range {rho_range:.3?} nb {} px {} samples {} ({:.0}/px/nb) depth {:.1} ms",
-                neighbours.len(),
-                times.searched_pixels,
-                times.samples,
-                times.samples as f64 / (times.searched_pixels.max(1) * neighbours.len() as u64) as f64,
-                times.depth.as_secs_f64() * 1e3
-            );
-        }
         self.stats.keyframes_reconstructed += 1;
     }
 
