@@ -10,7 +10,7 @@ use sdslam::camera::Frame;
 use sdslam::config::Config;
 use sdslam::eval::{ate, TimedPose};
 use sdslam::geometry::{CameraFromWorld, Se3};
-use sdslam::loop_closing::{LoopCloser, PlaceIndex};
+use sdslam::loop_closing::{GlobalBaJob, LoopCloser, PlaceIndex};
 use sdslam::place_recognition::{default_vocabulary, KeyFrameDatabase};
 use sdslam::semidense::Densifier;
 use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
@@ -87,6 +87,7 @@ fn a_drifted_loop_is_detected_and_corrected() {
             .collect()
     };
     let before = ate(&truth, &kf_poses(&map), 0.02, true).unwrap().rmse_m;
+
     // Place recognition index of every keyframe.
     let vocab = default_vocabulary().unwrap();
     let mut index = PlaceIndex {
@@ -149,4 +150,71 @@ fn a_drifted_loop_is_detected_and_corrected() {
     }
     eprintln!("keyframe ATE: drifted {before:.4} m, after loop closing {after:.4} m");
     assert!(after < 0.5 * before, "{before} -> {after}");
+}
+
+/// The background BA's merge: a keyframe and a point made after the problem was copied move
+/// with their parent / reference keyframe's correction.
+#[test]
+fn global_ba_merge_carries_keyframes_made_meanwhile() {
+    let seq = SyntheticSequence::new(SyntheticConfig {
+        frames: 300,
+        ..SyntheticConfig::default()
+    });
+    let cam = seq.config.camera();
+    let gt = seq.ground_truth();
+    let config = Config::default();
+    let mut d = Densifier::new(&cam, &config, 16);
+    let mut f = Frame::new(cam.width, cam.height);
+    for i in (0..60).step_by(6) {
+        seq.render_frame(i, &mut f);
+        d.add_keyframe(&f.gray, Some(&f.rgb), f.timestamp, i as u64, &gt[i].t_wc);
+    }
+    d.connect();
+    let kfs = d.keyframes().to_vec();
+    let mut map = d.map().lock().unwrap();
+    // Disturb the last keyframe so the BA has something to correct.
+    let last = *kfs.last().unwrap();
+    let shift = Se3::from_parts(
+        nalgebra::Translation3::new(0.02, 0.0, 0.0),
+        UnitQuaternion::identity(),
+    );
+    map.keyframe_mut(last).unwrap().t_cw =
+        CameraFromWorld(shift * map.keyframe(last).unwrap().t_cw.0);
+    let scales: Vec<f64> = (0..8).map(|l| 1.2f64.powi(l)).collect();
+    let mut job = GlobalBaJob::prepare(&map, &cam, &scales, 10).unwrap();
+    // Meanwhile: a new keyframe, child of the last, 5 cm ahead of it, with a point.
+    let parent_before = map.keyframe(last).unwrap().t_cw;
+    let offset = Se3::from_parts(
+        nalgebra::Translation3::new(0.0, 0.0, -0.05),
+        UnitQuaternion::identity(),
+    );
+    let new_kf = map
+        .insert_keyframe(|k| {
+            k.t_cw = CameraFromWorld(offset * parent_before.0);
+            k.timestamp = 99.0;
+        })
+        .unwrap();
+    map.keyframe_mut(new_kf).unwrap().parent = Some(last);
+    map.keyframe_mut(last).unwrap().children.push(new_kf);
+    let p = map
+        .insert_point(nalgebra::Vector3::new(1.0, 0.5, 1.0), new_kf)
+        .unwrap();
+    let p_cam_before = map
+        .keyframe(new_kf)
+        .unwrap()
+        .t_cw
+        .transform(&map.point(p).unwrap().position);
+    job.solve();
+    job.merge(&mut map);
+    let parent_after = map.keyframe(last).unwrap().t_cw;
+    assert!(
+        (parent_after.0.translation.vector - parent_before.0.translation.vector).norm() > 1e-3,
+        "the BA did not move the disturbed keyframe"
+    );
+    // The child keeps its pose relative to its parent, the point its camera coordinates.
+    let child = map.keyframe(new_kf).unwrap().t_cw;
+    let rel = child.0 * parent_after.0.inverse();
+    assert!((rel.translation.vector - offset.translation.vector).norm() < 1e-9);
+    let p_cam_after = child.transform(&map.point(p).unwrap().position);
+    assert!((p_cam_after - p_cam_before).norm() < 1e-9);
 }

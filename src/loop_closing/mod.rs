@@ -6,6 +6,10 @@
 //! neighbours are corrected by it, duplicated points fused, and the essential graph optimised
 //! as a Sim3 pose graph with the loop keyframe fixed, moving every keyframe and point.
 
+mod global_ba;
+
+pub use global_ba::GlobalBaJob;
+
 use std::collections::{HashMap, HashSet};
 
 use nalgebra::{Matrix3, Vector2};
@@ -336,17 +340,22 @@ impl LoopCloser {
             .keyframe(kf)
             .map(|k| k.covisibles.iter().map(|&(x, _)| x).collect())
             .unwrap_or_default();
+        // In a fixed order (the keyframe, then its neighbours by covisibility): a point seen
+        // by several of them moves with the first, so runs are reproducible.
+        let mut order = vec![kf];
         corrected.insert(kf, *s_cw);
         for &n in &neighbours {
             if let Some(s_iw) = before.get(&n) {
                 let s_ic = sim3_compose(s_iw, &t_wc);
                 corrected.insert(n, sim3_compose(&s_ic, s_cw));
+                order.push(n);
             }
         }
         // Points seen by the corrected keyframes move with them (and later with that keyframe
         // in the pose graph step).
         let mut moved: HashMap<MapPointId, KeyFrameId> = HashMap::new();
-        for (&id, s_new) in &corrected {
+        for id in &order {
+            let (id, s_new) = (*id, &corrected[id]);
             let pts: Vec<MapPointId> = map
                 .keyframe(id)
                 .map(|k| k.observed().map(|(_, p)| p).collect())

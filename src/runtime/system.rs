@@ -15,9 +15,9 @@ use crate::eval::TimedPose;
 use crate::features::OrbExtractor;
 use crate::geometry::{CameraFromWorld, Se3, WorldFromCamera};
 use crate::local_mapping::{median_depth, LocalMapper};
-use crate::loop_closing::{LoopCloser, PlaceIndex};
+use crate::loop_closing::{GlobalBaJob, LoopCloser, PlaceIndex};
 use crate::map::{KeyFrameId, Map, MapConfig};
-use crate::optimize::{BaObservation, BaOptions, BaProblem, BundleAdjuster};
+
 use crate::place_recognition::{default_vocabulary, KeyFrameDatabase, Vocabulary};
 use crate::runtime::semidense_worker::SemiDenseWorker;
 use crate::runtime::StageTimer;
@@ -95,6 +95,7 @@ pub struct System {
     fresh_keyframes: heapless::Vec<KeyFrameId, 4>,
     /// Run a full BA when the run finishes (`[map] final_global_ba`).
     final_ba: bool,
+    global_ba_after_loop: bool,
     finished: bool,
     /// Place recognition for relocalisation: the vocabulary (the shipped default unless one is
     /// given) and the keyframe database, keyed by keyframe serial.
@@ -145,6 +146,7 @@ impl System {
                 expected_frames,
                 config.runtime.mapping_cpus.clone(),
                 Arc::clone(&places),
+                config.map.global_ba_after_loop,
             )
         } else {
             Mapping::Inline(Box::new((
@@ -188,6 +190,7 @@ impl System {
             semidense,
             fresh_keyframes: heapless::Vec::new(),
             final_ba: config.map.final_global_ba,
+            global_ba_after_loop: config.map.global_ba_after_loop,
             finished: false,
             init: Initializer::new(max_features, w, h),
             frame: TrackedFrame::new(max_features, w, h),
@@ -449,8 +452,18 @@ impl System {
                 self.stats.local_mapping.record(tm.elapsed());
                 let places = self.places.lock().unwrap_or_else(|e| e.into_inner());
                 let tl = Instant::now();
-                if closer.process(map, &places, kf).is_some() {
+                let closed = closer.process(map, &places, kf).is_some();
+                drop(places);
+                if closed {
                     self.stats.loop_closing.record(tl.elapsed());
+                }
+                if closed && self.global_ba_after_loop {
+                    // Deterministic mode: the full BA after the loop runs inline.
+                    let scales = self.tracker.scales.clone();
+                    if let Some(mut job) = GlobalBaJob::prepare(map, &self.camera, &scales, 10) {
+                        job.solve();
+                        job.merge(map);
+                    }
                 }
                 self.stats.loops_closed = closer.loops_closed;
             }
@@ -479,60 +492,11 @@ impl System {
 
     /// Full BA of the map (first keyframe fixed).
     fn global_ba(&mut self, map: &mut Map, iterations: usize) {
-        let kfs: Vec<KeyFrameId> = map.keyframes().map(|(id, _)| id).collect();
-        let pts: Vec<_> = map.points().map(|(id, _)| id).collect();
-        let mut index = std::collections::HashMap::new();
-        let mut p = BaProblem {
-            fx: self.camera.fx,
-            fy: self.camera.fy,
-            cx: self.camera.cx,
-            cy: self.camera.cy,
-            ..Default::default()
-        };
-        for (i, &k) in kfs.iter().enumerate() {
-            index.insert(k, i as u32);
-            let kf = map.keyframe(k);
-            p.poses
-                .push(kf.map_or(CameraFromWorld::identity(), |k| k.t_cw));
-            p.pose_fixed
-                .push(kf.is_none_or(|k| k.parent.is_none()) || i == 0);
-        }
-        let scales = &self.tracker.scales;
-        for (j, &mp) in pts.iter().enumerate() {
-            let Some(m) = map.point(mp) else {
-                continue;
-            };
-            p.points.push(m.position);
-            for &(kf, i) in &m.observations {
-                let (Some(&pi), Some(k)) = (index.get(&kf), map.keyframe(kf)) else {
-                    continue;
-                };
-                let kp = &k.keypoints[i as usize];
-                let s = scales[kp.octave as usize];
-                p.observations.push(BaObservation {
-                    pose: pi,
-                    point: j as u32,
-                    uv: nalgebra::Vector2::new(kp.ux as f64, kp.uy as f64),
-                    inv_sigma2: 1.0 / (s * s),
-                });
-            }
-        }
-        BundleAdjuster::new().solve(
-            &mut p,
-            &BaOptions {
-                iterations,
-                ..BaOptions::default()
-            },
-        );
-        for (i, &k) in kfs.iter().enumerate() {
-            if let Some(kf) = map.keyframe_mut(k) {
-                kf.t_cw = p.poses[i];
-            }
-        }
-        for (j, &mp) in pts.iter().enumerate() {
-            if let Some(m) = map.point_mut(mp) {
-                m.position = p.points[j];
-            }
+        if let Some(mut job) =
+            GlobalBaJob::prepare(map, &self.camera, &self.tracker.scales, iterations)
+        {
+            job.solve();
+            job.merge(map);
         }
     }
 
