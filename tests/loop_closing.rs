@@ -52,6 +52,17 @@ fn a_drifted_loop_is_detected_and_corrected() {
             .all(|(k, _)| !kfs[..5].contains(k)),
         "the end must not be connected to the start for this test"
     );
+    let kf_poses = |map: &sdslam::map::Map| -> Vec<TimedPose> {
+        kfs.iter()
+            .map(|&k| {
+                let kf = map.keyframe(k).unwrap();
+                TimedPose {
+                    timestamp: kf.timestamp,
+                    t_wc: kf.t_cw.inverse(),
+                }
+            })
+            .collect()
+    };
     // Drift accumulating along the trajectory: keyframes (and the points they made) rotate
     // and shift more and more about the world origin.
     let drift = |i: usize| {
@@ -75,17 +86,6 @@ fn a_drifted_loop_is_detected_and_corrected() {
         let kf = map.keyframe_mut(k).unwrap();
         kf.t_cw = CameraFromWorld(kf.t_cw.0 * drift(i).inverse());
     }
-    let kf_poses = |map: &sdslam::map::Map| -> Vec<TimedPose> {
-        kfs.iter()
-            .map(|&k| {
-                let kf = map.keyframe(k).unwrap();
-                TimedPose {
-                    timestamp: kf.timestamp,
-                    t_wc: kf.t_cw.inverse(),
-                }
-            })
-            .collect()
-    };
     let before = ate(&truth, &kf_poses(&map), 0.02, true).unwrap().rmse_m;
 
     // Place recognition index of every keyframe.
