@@ -17,10 +17,7 @@ use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
 
 #[test]
 fn a_drifted_loop_is_detected_and_corrected() {
-    let seq = SyntheticSequence::new(SyntheticConfig {
-        frames: 300,
-        ..SyntheticConfig::default()
-    });
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
     let cam = seq.config.camera();
     let gt = seq.ground_truth();
     let mut config = Config::default();
@@ -156,10 +153,7 @@ fn a_drifted_loop_is_detected_and_corrected() {
 /// with their parent / reference keyframe's correction.
 #[test]
 fn global_ba_merge_carries_keyframes_made_meanwhile() {
-    let seq = SyntheticSequence::new(SyntheticConfig {
-        frames: 300,
-        ..SyntheticConfig::default()
-    });
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
     let cam = seq.config.camera();
     let gt = seq.ground_truth();
     let config = Config::default();

@@ -13,10 +13,7 @@ use sdslam::matching::hamming;
 use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
 
 fn synthetic_frame(i: usize) -> Vec<u8> {
-    let seq = SyntheticSequence::new(SyntheticConfig {
-        frames: 300,
-        ..SyntheticConfig::default()
-    });
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
     let mut f = Frame::new(640, 480);
     seq.render_frame(i, &mut f);
     f.gray

@@ -18,10 +18,7 @@ static A: Counting = Counting;
 
 #[test]
 fn extraction_allocates_nothing_after_the_first_frame() {
-    let seq = SyntheticSequence::new(SyntheticConfig {
-        frames: 300,
-        ..SyntheticConfig::default()
-    });
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
     let frames: Vec<Frame> = [0usize, 50, 100, 150, 200]
         .iter()
         .map(|&i| {

@@ -12,10 +12,7 @@ use sdslam::tracking::TrackingState;
 
 #[test]
 fn relocalises_within_10_frames_after_a_60_frame_blackout() {
-    let seq = SyntheticSequence::new(SyntheticConfig {
-        frames: 300,
-        ..SyntheticConfig::default()
-    });
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
     let c = &seq.config;
     let mut config = Config::default();
     config.semidense.enabled = false;

@@ -14,10 +14,7 @@ static A: Counting = Counting;
 
 #[test]
 fn semidense_keyframes_allocate_nothing_after_warm_up() {
-    let seq = SyntheticSequence::new(SyntheticConfig {
-        frames: 300,
-        ..SyntheticConfig::default()
-    });
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
     let cam = seq.config.camera();
     let config = Config::default();
     assert_eq!(config.semidense.threads, 2, "the default pool is measured");

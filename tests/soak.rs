@@ -12,10 +12,7 @@ use sdslam::tracking::TrackingState;
 
 #[test]
 fn four_loops_keep_memory_flat_and_the_map_bounded() {
-    let seq = SyntheticSequence::new(SyntheticConfig {
-        frames: 300,
-        ..SyntheticConfig::default()
-    });
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
     let c = &seq.config;
     let mut config = Config::default();
     config.semidense.enabled = false;

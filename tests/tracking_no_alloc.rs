@@ -17,10 +17,7 @@ static A: Counting = Counting;
 
 #[test]
 fn tracking_frames_allocate_nothing_after_warm_up() {
-    let seq = SyntheticSequence::new(SyntheticConfig {
-        frames: 300,
-        ..SyntheticConfig::default()
-    });
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
     let c = &seq.config;
     let mut config = Config::default();
     config.semidense.enabled = false;
