@@ -240,16 +240,7 @@ fn vocab_train_import_and_bad_files() {
     let d = tempfile::tempdir().unwrap();
     // Train on a few rendered frames of the built-in sequence.
     let seq = d.path().join("seq");
-    let (ok, _, err) = sdslam(&[
-        "synth",
-        "--out",
-        seq.to_str().unwrap(),
-        "--frames",
-        "6",
-        "--depth-every",
-        "0",
-    ]);
-    assert!(ok, "{err}");
+    common::synth_folder(&seq, 6, 0);
     let voc = d.path().join("v.bin");
     let (ok, out, err) = sdslam(&[
         "vocab",
@@ -312,16 +303,7 @@ fn densify_writes_cloud_depth_maps_and_accuracy_and_eval_cloud_agrees() {
     let d = tempfile::tempdir().unwrap();
     let seq = d.path().join("seq");
     let out = d.path().join("out");
-    let (ok, _, err) = sdslam(&[
-        "synth",
-        "--out",
-        seq.to_str().unwrap(),
-        "--frames",
-        "90",
-        "--depth-every",
-        "8",
-    ]);
-    assert!(ok, "{err}");
+    common::synth_folder(&seq, 90, 8);
     let poses = seq.join("groundtruth.txt");
     let (ok, _, err) = sdslam(&[
         "densify",

@@ -13,16 +13,7 @@ use sdslam::io::read_tum_trajectory;
 fn built_in_sequence_replays_tracked_accurate_and_deterministic() {
     let d = tempfile::tempdir().unwrap();
     let seq = d.path().join("seq");
-    let (ok, _, err) = sdslam(&[
-        "synth",
-        "--out",
-        seq.to_str().unwrap(),
-        "--frames",
-        "300",
-        "--depth-every",
-        "0",
-    ]);
-    assert!(ok, "{err}");
+    common::synth_folder(&seq, 300, 0);
     let mut trajectories = Vec::new();
     // Runs 0 and 1: deterministic (one thread); run 2: local mapping on its own thread.
     for run in 0..3 {

@@ -117,16 +117,7 @@ fn depth_is_positive_and_in_room_range() {
 fn synth_folder_replays_through_the_file_backed_mock() {
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("seq");
-    let (ok, _, err) = common::sdslam(&[
-        "synth",
-        "--out",
-        out.to_str().unwrap(),
-        "--frames",
-        "12",
-        "--depth-every",
-        "5",
-    ]);
-    assert!(ok, "{err}");
+    common::synth_folder(&out, 12, 5);
     let mut src = ImageListSource::open(&out).unwrap();
     assert_eq!(src.info().len, Some(12));
     let seq = SyntheticSequence::new(SyntheticConfig {

@@ -114,6 +114,19 @@ const NONE: Best = Best {
     rg: 0.0,
 };
 
+/// Across SIMD lanes (each holding its first minimum): the smallest error, and among equal
+/// errors the first sample, as the scalar scan picks.
+fn reduce_lanes(es: &[f32], ks: &[i32]) -> Best {
+    let mut best = NONE;
+    for (e, &k) in es.iter().zip(ks) {
+        if *e < best.e || (*e == best.e && e.is_finite() && (k as usize) < best.k) {
+            best.e = *e;
+            best.k = k as usize;
+        }
+    }
+    best
+}
+
 pub(super) fn scan_scalar(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
     let mut best = NONE;
     for k in 0..walk.n {
@@ -244,15 +257,7 @@ unsafe fn scan_avx2(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]
     let mut ks = [0i32; 8];
     _mm256_storeu_ps(es.as_mut_ptr(), best_e);
     _mm256_storeu_si256(ks.as_mut_ptr() as *mut __m256i, best_k);
-    // Across lanes: the smallest error, and among equal errors the first sample.
-    let mut best = NONE;
-    for (e, k) in es.iter().zip(ks) {
-        if *e < best.e || (*e == best.e && e.is_finite() && (k as usize) < best.k) {
-            best.e = *e;
-            best.k = k as usize;
-        }
-    }
-    finish(best, walk, probe, params, t)
+    finish(reduce_lanes(&es, &ks), walk, probe, params, t)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -341,14 +346,7 @@ unsafe fn scan_avx512(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u3
     let mut ks = [0i32; 16];
     _mm512_storeu_ps(es.as_mut_ptr(), best_e);
     _mm512_storeu_si512(ks.as_mut_ptr() as *mut __m512i, best_k);
-    let mut best = NONE;
-    for (e, k) in es.iter().zip(ks) {
-        if *e < best.e || (*e == best.e && e.is_finite() && (k as usize) < best.k) {
-            best.e = *e;
-            best.k = k as usize;
-        }
-    }
-    finish(best, walk, probe, params, t)
+    finish(reduce_lanes(&es, &ks), walk, probe, params, t)
 }
 
 #[cfg(test)]

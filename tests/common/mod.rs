@@ -40,3 +40,18 @@ pub fn sdslam(args: &[&str]) -> (bool, String, String) {
 }
 pub mod counting_alloc;
 pub mod problems;
+
+/// Writes the built-in sequence (`frames` frames, ground-truth depth every `depth_every`th,
+/// 0 = none) as a TUM folder `dir` with `sdslam synth`; panics with its error output on failure.
+pub fn synth_folder(dir: &std::path::Path, frames: usize, depth_every: usize) {
+    let (ok, _, err) = sdslam(&[
+        "synth",
+        "--out",
+        dir.to_str().unwrap(),
+        "--frames",
+        &frames.to_string(),
+        "--depth-every",
+        &depth_every.to_string(),
+    ]);
+    assert!(ok, "sdslam synth failed: {err}");
+}
