@@ -28,6 +28,8 @@ pub enum SourceError {
         want_w: u32,
         want_h: u32,
     },
+    #[error(transparent)]
+    Device(#[from] crate::device::DeviceError),
     #[error("source thread failed: {0}")]
     Thread(String),
 }

@@ -7,6 +7,7 @@
 //! allocates per frame.
 
 pub mod decode;
+pub mod device;
 pub mod error;
 pub mod files;
 pub mod frame;

@@ -19,6 +19,16 @@ pub enum Pacing {
     AsFastAsPossible,
     /// Frames released at their timestamps divided by `speed` (1.0 = recorded rate).
     RealTime { speed: f64 },
+    /// A live camera: frames released as the device delivers them; a slow consumer loses the
+    /// oldest queued frames (the newest always wins) and the device is never held up.
+    Live,
+}
+
+impl Pacing {
+    /// True when a slow consumer loses the oldest frames rather than holding up the source.
+    pub fn drops_oldest(self) -> bool {
+        !matches!(self, Pacing::AsFastAsPossible)
+    }
 }
 
 /// Counters shared with the source thread.
@@ -179,7 +189,7 @@ fn acquire(
             Err(TryRecvError::Disconnected) => return None,
             Err(TryRecvError::Empty) => {}
         }
-        if matches!(pacing, Pacing::RealTime { .. }) {
+        if pacing.drops_oldest() {
             if let Ok(Msg::Frame(old)) = steal_rx.try_recv() {
                 stats.dropped.fetch_add(1, Ordering::Relaxed);
                 return Some(old);
@@ -216,7 +226,7 @@ fn deliver(
             Err(TrySendError::Disconnected(_)) => return false,
             Err(TrySendError::Full(m)) => {
                 msg = m;
-                if matches!(pacing, Pacing::RealTime { .. }) {
+                if pacing.drops_oldest() {
                     if let Ok(old) = steal_rx.try_recv() {
                         if let Msg::Frame(f) = old {
                             stats.dropped.fetch_add(1, Ordering::Relaxed);
