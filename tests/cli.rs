@@ -401,3 +401,151 @@ fn bench_latency_prints_a_histogram_and_rejects_impossible_cores() {
     let (ok, _, err) = sdslam(&["bench", "latency", "--cores", "100000"]);
     assert!(!ok && err.contains("--cores"), "{err}");
 }
+
+#[test]
+fn cameras_without_devices_says_so_and_succeeds() {
+    let (ok, out, err) = sdslam(&["cameras"]);
+    assert!(ok, "{err}");
+    // The build machines have no /dev/video*; on a machine with a camera it is listed.
+    if !std::path::Path::new("/dev/video0").exists() {
+        assert!(out.contains("no cameras found"), "{out}");
+    } else {
+        assert!(out.contains("v4l2:/dev/video"), "{out}");
+    }
+}
+
+#[test]
+fn live_camera_errors_name_the_device_and_the_fix() {
+    let out = tempfile::tempdir().unwrap();
+    let o = out.path().to_str().unwrap();
+    let (ok, _, err) = sdslam(&["run", "v4l2:/dev/video97", "--out", o]);
+    assert!(!ok && err.contains("--calib"), "{err}");
+    let (ok, _, err) = sdslam(&[
+        "run",
+        "v4l2:/dev/video97",
+        "--calib",
+        "calib/synthetic.yaml",
+        "--out",
+        o,
+    ]);
+    assert!(
+        !ok && err.contains("/dev/video97") && err.contains("no such camera"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    let (ok, _, err) = sdslam(&["run", "fakecam:h264", "--out", o]);
+    assert!(!ok && err.contains("expected GREY, YUYV or MJPG"), "{err}");
+}
+
+/// The live path end to end without a device: the built-in sequence through the fake camera in
+/// YUYV, newest-frame-wins pacing, then the camera unplugged at frame 90: the run ends cleanly
+/// with every output written and the reason in the report.
+#[test]
+fn fake_camera_tracks_and_an_unplug_still_writes_every_output() {
+    let out = tempfile::tempdir().unwrap();
+    let (ok, _, err) = sdslam(&[
+        "run",
+        "fakecam:yuyv,unplug=90",
+        "--no-semidense",
+        "--out",
+        out.path().to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("disconnected"), "{err}");
+    let r = report(out.path());
+    assert!(
+        r["source"].as_str().unwrap().contains("YUYV 640x480"),
+        "{}",
+        r["source"]
+    );
+    let frames = r["frames"].as_u64().unwrap();
+    assert!(frames > 30 && frames <= 90, "{frames} frames");
+    // Tracking starts after initialisation (frame ~30 of the built-in sequence).
+    assert!(r["tracked_frames"].as_u64().unwrap() + 35 >= frames, "{r}");
+    assert!(r["stopped_early"]
+        .as_str()
+        .unwrap()
+        .contains("disconnected"));
+    for f in [
+        "trajectory.txt",
+        "keyframes.txt",
+        "semidense.ply",
+        "report.json",
+    ] {
+        assert!(out.path().join(f).is_file(), "{f} missing");
+    }
+    let traj = std::fs::read_to_string(out.path().join("trajectory.txt")).unwrap();
+    assert!(traj.lines().filter(|l| !l.starts_with('#')).count() > 20);
+}
+
+/// `record` writes a TUM folder that replays through the file-backed mock with the same frames.
+#[test]
+fn record_from_the_fake_camera_replays_as_a_tum_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    let (ok, _, err) = sdslam(&[
+        "record",
+        "fakecam:grey",
+        "--calib",
+        "calib/synthetic.yaml",
+        "--frames",
+        "12",
+        "--out",
+        rec.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let list = std::fs::read_to_string(rec.join("rgb.txt")).unwrap();
+    let stamps: Vec<f64> = list
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split_whitespace().next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(stamps.len(), 12);
+    assert!(stamps.windows(2).all(|w| w[1] > w[0]));
+    assert!(rec.join("camera.yaml").is_file());
+    let out = dir.path().join("out");
+    let (ok, _, err) = sdslam(&[
+        "run",
+        rec.to_str().unwrap(),
+        "--no-semidense",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(report(&out)["frames"], 12);
+    // Recording into a non-empty folder is refused.
+    let (ok, _, err) = sdslam(&[
+        "record",
+        "fakecam",
+        "--frames",
+        "1",
+        "--out",
+        rec.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("not empty"), "{err}");
+}
+
+/// Ctrl-C (SIGINT) mid-run: the run stops, joins its threads and writes every output.
+#[test]
+fn interrupt_mid_run_writes_the_outputs_so_far() {
+    let out = tempfile::tempdir().unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_sdslam"))
+        .args(["run", "fakecam:yuyv", "--out", out.path().to_str().unwrap()])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_secs(4));
+    // SAFETY: kill(2) on our own child's pid.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let status = child.wait().unwrap();
+    assert!(status.success(), "{status:?}");
+    let r = report(out.path());
+    assert!(
+        r["stopped_early"].as_str().unwrap().contains("interrupted"),
+        "{r}"
+    );
+    assert!(r["frames"].as_u64().unwrap() > 0);
+    for f in ["trajectory.txt", "keyframes.txt", "semidense.ply"] {
+        assert!(out.path().join(f).is_file(), "{f} missing");
+    }
+}

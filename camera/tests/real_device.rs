@@ -18,7 +18,7 @@ fn streams_thirty_frames_with_increasing_timestamps() {
         timeout: Duration::from_secs(5),
         ..Default::default()
     };
-    let mut src = open_live(&camera(), &opts).expect("open the camera");
+    let mut src = open_live(&camera(), &opts).expect("open the camera").source;
     let info = src.info().clone();
     let mut f = Frame::new(info.width, info.height);
     let mut stamps = Vec::new();

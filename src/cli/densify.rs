@@ -65,7 +65,12 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
     if poses.is_empty() {
         return Err(Error::Invalid(format!("{}: no poses", a.poses.display())));
     }
-    let mut opened = source::open(Some(&a.source), a.calib.as_deref(), None)?;
+    let mut opened = source::open(
+        Some(&a.source),
+        a.calib.as_deref(),
+        None,
+        &source::CameraArgs::default(),
+    )?;
     let calib = opened.calibration.clone();
     let info = opened.source.info().clone();
     let camera = calib.camera.undistorted();

@@ -1,10 +1,13 @@
 //! Subcommands of `sdslam`.
 
 mod bench;
+mod cameras;
 mod densify;
 mod eval;
 mod features;
+mod record;
 mod run;
+mod signal;
 mod source;
 mod synth;
 mod vocab;
@@ -30,6 +33,10 @@ pub struct Cli {
 enum Command {
     /// Run SLAM on a source and write trajectory.txt, keyframes.txt, semidense.ply and report.json.
     Run(run::RunArgs),
+    /// List cameras (V4L2, and libcamera when built with it) with their formats, sizes and rates.
+    Cameras,
+    /// Save a camera's frames as a TUM RGB-D folder (rgb/, rgb.txt) that replays in `sdslam run`.
+    Record(record::RecordArgs),
     /// Semi-dense reconstruction from given poses (offline): semidense.ply, depth maps, report.
     Densify(densify::DensifyArgs),
     /// Measure the pipeline: `bench latency [SOURCE] [--cores 0,1]`.
@@ -51,6 +58,8 @@ pub fn dispatch(cli: Cli) -> Result<()> {
     match cli.command {
         None => run::run(run::RunArgs::default_synthetic()),
         Some(Command::Run(a)) => run::run(a),
+        Some(Command::Cameras) => cameras::cameras(),
+        Some(Command::Record(a)) => record::record(a),
         Some(Command::Eval(e)) => eval::eval(e),
         Some(Command::Densify(a)) => densify::densify(a),
         Some(Command::Bench(b)) => bench::bench(b),

@@ -49,6 +49,8 @@ pub struct RunArgs {
     /// (16-bit, depth x 5000 in map units, 0 = no estimate).
     #[arg(long)]
     depth_maps: bool,
+    #[command(flatten)]
+    pub camera: source::CameraArgs,
 }
 
 impl RunArgs {
@@ -64,6 +66,7 @@ impl RunArgs {
             frames: None,
             depth_maps: false,
             drop: None,
+            camera: source::CameraArgs::default(),
         }
     }
 }
@@ -89,7 +92,8 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         config.semidense.enabled = false;
     }
     io::prepare_output_dir(&a.out)?;
-    let mut opened = source::open(a.source.as_deref(), a.calib.as_deref(), a.frames)?;
+    let mut opened = source::open(a.source.as_deref(), a.calib.as_deref(), a.frames, &a.camera)?;
+    super::signal::install();
     let calib = opened.calibration.clone();
     let groundtruth = opened.groundtruth.clone();
     let depth_truth = std::mem::replace(&mut opened.depth_truth, source::DepthTruth::None);
@@ -110,15 +114,23 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             .unwrap_or_default(),
         opened.calibration_name
     );
-    let mut src: Box<dyn FrameSource> = if a.realtime && !a.deterministic {
-        Box::new(PacedSource::spawn(
-            opened.source,
-            Pacing::RealTime {
-                speed: config.runtime.realtime_speed,
-            },
-        )?)
-    } else {
-        opened.source
+    // Cameras: newest frame wins. Replays: real time on request, else every frame in order.
+    let live = opened.live.clone();
+    let pacing = match (&live, a.realtime && !a.deterministic) {
+        (Some(_), _) => Some(Pacing::Live),
+        (None, true) => Some(Pacing::RealTime {
+            speed: config.runtime.realtime_speed,
+        }),
+        (None, false) => None,
+    };
+    let mut pacing_stats = None;
+    let mut src: Box<dyn FrameSource> = match pacing {
+        Some(p) => {
+            let paced = PacedSource::spawn(opened.source, p)?;
+            pacing_stats = Some(paced.stats());
+            Box::new(paced)
+        }
+        None => opened.source,
     };
     let deadline_ms = config.runtime.deadline_ms.unwrap_or(1e3 / calib.fps);
     let rectify = (!calib.camera.is_distortion_free()).then(|| RectifyMap::new(&calib.camera));
@@ -150,6 +162,14 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     };
     let mut warned_skip = false;
     loop {
+        if super::signal::interrupted() {
+            report.stopped_early =
+                Some("interrupted (Ctrl-C); outputs written from the run so far".into());
+            eprintln!(
+                "sdslam: interrupted; stopping the threads and writing the outputs computed so far"
+            );
+            break;
+        }
         match src.next_frame(&mut frame) {
             Ok(FrameStatus::Ready) => {}
             Ok(FrameStatus::Skipped { index, reason }) => {
@@ -202,6 +222,15 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         report.frames += 1;
     }
     drop(src);
+    if let Some(p) = &pacing_stats {
+        report.dropped_frames = p.dropped();
+    }
+    if let Some(l) = &live {
+        use std::sync::atomic::Ordering::Relaxed;
+        report.driver_dropped_frames = l.driver_drops.load(Relaxed);
+        let age = l.mean_age_us.load(Relaxed);
+        report.capture_to_dequeue_ms = (age > 0).then_some(age as f64 / 1e3);
+    }
 
     report.wall_time_s = started.elapsed().as_secs_f64();
     report.peak_rss_mb = io::peak_rss_mb();

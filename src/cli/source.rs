@@ -2,6 +2,12 @@
 
 use std::path::Path;
 
+use std::sync::Arc;
+
+use sdslam::camera::device::fake::FakeDevice;
+use sdslam::camera::device::{
+    self, Exposure, LiveOptions, LiveSource, LiveStats, ModeRequest, PixelFormat,
+};
 use sdslam::camera::{files::euroc_cam_dir, FrameSource, ImageListSource};
 use sdslam::camera_model::Calibration;
 use sdslam::eval::TimedPose;
@@ -20,6 +26,68 @@ pub struct OpenedSource {
     pub groundtruth: Option<Vec<TimedPose>>,
     /// Where ground-truth depth comes from, to evaluate the semi-dense cloud.
     pub depth_truth: DepthTruth,
+    /// Set for cameras (and the fake camera): frames come as the device delivers them.
+    pub live: Option<Arc<LiveStats>>,
+}
+
+/// Camera settings from the command line (for live sources only).
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct CameraArgs {
+    /// Fixed exposure time in microseconds (recommended for SLAM: auto exposure changes the
+    /// brightness between frames). Default: leave the camera's setting.
+    #[arg(long, value_name = "MICROSECONDS")]
+    pub exposure_us: Option<u32>,
+    /// Turn the camera's auto exposure on.
+    #[arg(long, conflicts_with = "exposure_us")]
+    pub auto_exposure: bool,
+    /// Fixed gain in device units (auto gain off).
+    #[arg(long)]
+    pub gain: Option<i64>,
+    /// Pixel format to stream (GREY, YUYV or MJPG); default: the best the camera offers at
+    /// the calibration's size and frame rate.
+    #[arg(long, value_parser = parse_pixel_format)]
+    pub pixel_format: Option<PixelFormat>,
+}
+
+impl CameraArgs {
+    fn options(&self, size: Option<(u32, u32)>, fps: Option<f64>) -> LiveOptions {
+        LiveOptions {
+            request: ModeRequest {
+                size,
+                fps,
+                format: self.pixel_format,
+            },
+            exposure: match (self.exposure_us, self.auto_exposure) {
+                (Some(micros), _) => Some(Exposure::Manual { micros }),
+                (None, true) => Some(Exposure::Auto),
+                _ => None,
+            },
+            gain: self.gain,
+            ..LiveOptions::default()
+        }
+    }
+}
+
+fn parse_pixel_format(s: &str) -> std::result::Result<PixelFormat, String> {
+    let up = match s.to_ascii_uppercase().as_str() {
+        "MJPEG" => "MJPG".to_string(),
+        "Y8" | "GRAY" => "GREY".to_string(),
+        u => u.to_string(),
+    };
+    let mut code = [b' '; 4];
+    for (c, b) in code.iter_mut().zip(up.bytes()) {
+        *c = b;
+    }
+    match PixelFormat::from_fourcc(code) {
+        PixelFormat::Other(_) => Err(format!("`{s}`: expected GREY, YUYV or MJPG")),
+        f => Ok(f),
+    }
+}
+
+fn warn_all(warnings: &[String]) {
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
 }
 
 /// Ground-truth depth of a source.
@@ -78,8 +146,10 @@ pub fn open(
     spec: Option<&str>,
     calib: Option<&Path>,
     frames: Option<usize>,
+    camera: &CameraArgs,
 ) -> Result<OpenedSource> {
     match spec {
+        Some(s) if s.starts_with("fakecam") => open_fake_camera(s, calib, frames, camera),
         None | Some("synthetic") => {
             let mut cfg = SyntheticConfig::default();
             if let Some(n) = frames {
@@ -94,14 +164,34 @@ pub fn open(
             Ok(OpenedSource {
                 source: Box::new(seq),
                 calibration,
-                calibration_name: calib.map(|p| p.display().to_string()).unwrap_or_else(|| "built-in synthetic camera".into()),
+                calibration_name: calib
+                    .map(|p| p.display().to_string())
+                    .unwrap_or_else(|| "built-in synthetic camera".into()),
                 groundtruth: Some(gt),
                 depth_truth: DepthTruth::Synthetic(cfg),
+                live: None,
             })
         }
-        Some(s) if s.starts_with("v4l2:") || s.starts_with("libcamera:") => Err(Error::Invalid(format!(
-            "{s}: live camera sources are not available in this build yet; replay a recording (TUM/EuRoC folder) instead"
-        ))),
+        Some(s) if s.starts_with("v4l2:") || s.starts_with("libcamera:") => {
+            let Some(calib_path) = calib else {
+                return Err(Error::Invalid(format!(
+                    "{s}: a live camera needs its calibration: pass --calib FILE (make one with `sdslam calibrate`)"
+                )));
+            };
+            let calibration = load_calibration(calib_path)?;
+            let size = (calibration.camera.width, calibration.camera.height);
+            let options = camera.options(Some(size), Some(calibration.fps));
+            let cam = device::open_live(s, &options).map_err(sdslam::camera::SourceError::from)?;
+            warn_all(&cam.warnings);
+            Ok(OpenedSource {
+                source: cam.source,
+                calibration,
+                calibration_name: calib_path.display().to_string(),
+                groundtruth: None,
+                depth_truth: DepthTruth::None,
+                live: Some(cam.stats),
+            })
+        }
         Some(s) => {
             let dir = Path::new(s);
             let mut src = ImageListSource::open(dir)?;
@@ -127,7 +217,11 @@ pub fn open(
             let info = src.info();
             calibration.check_image_size(info.width, info.height, &name)?;
             let gt = dir.join("groundtruth.txt");
-            let gt = if gt.is_file() { Some(read_tum_trajectory(&gt)?) } else { None };
+            let gt = if gt.is_file() {
+                Some(read_tum_trajectory(&gt)?)
+            } else {
+                None
+            };
             Ok(OpenedSource {
                 source: Box::new(src),
                 calibration,
@@ -138,7 +232,71 @@ pub fn open(
                 } else {
                     DepthTruth::None
                 },
+                live: None,
             })
         }
     }
+}
+
+/// `fakecam[:FORMAT][,unplug=N]`: the built-in sequence played through the fake camera device
+/// in the given pixel format (GREY, YUYV, MJPG), in real time: the whole live path (mode
+/// choice, conversion, kernel-style timestamps, newest-frame-wins) without a device, with
+/// ground truth. `unplug=N` makes the device vanish (ENODEV) at frame N.
+fn open_fake_camera(
+    spec: &str,
+    calib: Option<&Path>,
+    frames: Option<usize>,
+    camera: &CameraArgs,
+) -> Result<OpenedSource> {
+    let mut camera = camera.clone();
+    let bad = |m: String| {
+        Error::Invalid(format!(
+            "{spec}: {m} (expected fakecam[:FORMAT][,unplug=N])"
+        ))
+    };
+    let mut parts = spec.split(',');
+    match parts.next().unwrap_or_default().strip_prefix("fakecam") {
+        Some("") => {}
+        Some(f) if f.starts_with(':') => {
+            camera.pixel_format = Some(parse_pixel_format(&f[1..]).map_err(bad)?)
+        }
+        _ => return Err(bad("not a fake camera".into())),
+    }
+    let mut faults = device::fake::Faults::default();
+    for p in parts {
+        match p.split_once('=') {
+            Some(("unplug", n)) => {
+                faults.unplug_at = Some(
+                    n.parse()
+                        .map_err(|_| bad(format!("`{n}` is not a frame number")))?,
+                )
+            }
+            _ => return Err(bad(format!("unknown option `{p}`"))),
+        }
+    }
+    let mut opened = open(None, calib, frames, &CameraArgs::default())?;
+    let size = (
+        opened.calibration.camera.width,
+        opened.calibration.camera.height,
+    );
+    let t0 = SyntheticConfig::default().t0;
+    let mut dev = FakeDevice::new("fakecam", opened.source)
+        .with_scene_origin(t0)
+        .with_faults(faults);
+    dev.real_time = true;
+    let options = camera.options(Some(size), Some(opened.calibration.fps));
+    let src = LiveSource::start(dev, &options).map_err(sdslam::camera::SourceError::from)?;
+    warn_all(&src.warnings);
+    // Ground truth onto the device clock, so ATE still matches poses by timestamp.
+    if let Some(gt) = opened.groundtruth.as_mut() {
+        for p in gt.iter_mut() {
+            p.timestamp = src.device().device_time(p.timestamp).unwrap_or(p.timestamp);
+        }
+    }
+    if let DepthTruth::Synthetic(cfg) = &mut opened.depth_truth {
+        cfg.t0 = src.device().device_time(cfg.t0).unwrap_or(cfg.t0);
+    }
+    opened.live = Some(src.stats());
+    opened.source = Box::new(src);
+    Ok(opened)
 }

@@ -17,6 +17,15 @@ pub fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result
     super::write_atomic(path, &buf)
 }
 
+/// Writes a grey image as 8-bit PNG (atomically).
+pub fn write_gray_png(path: &Path, width: u32, height: u32, gray: &[u8]) -> Result<()> {
+    let mut buf = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut buf)
+        .write_image(gray, width, height, image::ExtendedColorType::L8)
+        .map_err(|e| encode_err(path, e))?;
+    super::write_atomic(path, &buf)
+}
+
 /// Writes a depth map (metres, 0 = none) as 16-bit PNG in metres x `factor` (TUM: 5000).
 pub fn write_depth_png(
     path: &Path,

@@ -8,7 +8,9 @@ mod ply;
 mod trajectory;
 
 pub use atomic::{write_atomic, write_json_atomic};
-pub use images::{load_tum_depth_frames, read_depth_png, write_depth_png, write_rgb_png};
+pub use images::{
+    load_tum_depth_frames, read_depth_png, write_depth_png, write_gray_png, write_rgb_png,
+};
 pub use ply::{decode_ply, encode_ply, write_ply, CloudPoint};
 pub use trajectory::{
     parse_tum_trajectory, read_tum_trajectory, tum_trajectory_text, write_tum_trajectory,

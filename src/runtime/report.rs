@@ -49,8 +49,13 @@ pub struct Report {
     /// Frames the source could not read (corrupt/unreadable images), skipped.
     pub skipped_frames: usize,
     pub deadline_misses: usize,
-    /// Frames lost to real-time pacing because tracking was behind.
+    /// Frames lost to real-time pacing because tracking was behind (the oldest queued frame
+    /// goes; the newest always reaches tracking).
     pub dropped_frames: u64,
+    /// Live cameras: frames the driver dropped before sdslam saw them (sequence gaps), and
+    /// the mean time from capture (kernel timestamp) to sdslam dequeuing the buffer.
+    pub driver_dropped_frames: u64,
+    pub capture_to_dequeue_ms: Option<f64>,
     pub peak_rss_mb: f64,
     /// Keyframe ATE RMSE after Sim3 alignment, when ground truth is available (source units).
     pub keyframe_ate_rmse_m: Option<f64>,

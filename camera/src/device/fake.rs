@@ -41,6 +41,8 @@ pub struct FakeDevice {
     /// Start of the device clock, seconds: the host's monotonic clock when streaming starts,
     /// as a V4L2 driver stamps.
     clock_origin: f64,
+    /// Scene time that maps to `clock_origin` (default: the first frame's).
+    scene_origin: Option<f64>,
     controls: Vec<(ControlInfo, i64)>,
     streaming: bool,
     produced: u64,
@@ -83,6 +85,7 @@ impl FakeDevice {
             faults: Faults::default(),
             real_time: false,
             clock_origin: 0.0,
+            scene_origin: None,
             controls: vec![
                 ctl(CameraControl::AutoExposure, 0, 3, 3),
                 ctl(CameraControl::ExposureTime, 1, 5000, 156),
@@ -104,6 +107,18 @@ impl FakeDevice {
     pub fn with_faults(mut self, faults: Faults) -> Self {
         self.faults = faults;
         self
+    }
+
+    /// Stamps frames at `clock_origin + (scene time - t0)`, so the scene's ground truth can
+    /// be moved onto the device clock with [`FakeDevice::device_time`].
+    pub fn with_scene_origin(mut self, t0: f64) -> Self {
+        self.scene_origin = Some(t0);
+        self
+    }
+
+    /// Device-clock time of scene time `t` (known once streaming started).
+    pub fn device_time(&self, t: f64) -> Option<f64> {
+        Some(self.clock_origin + t - self.scene_origin?)
     }
 
     /// Current value of a control (for tests of the controls policy).
@@ -269,7 +284,8 @@ impl CaptureDevice for FakeDevice {
                 continue;
             }
             self.encode(&mode)?;
-            let clock = self.clock_origin + t;
+            let scene_t0 = *self.scene_origin.get_or_insert(self.frame.timestamp);
+            let clock = self.clock_origin + (self.frame.timestamp - scene_t0);
             let mut meta = BufferMeta {
                 sequence: n as u32,
                 sec: clock.floor() as i64,

@@ -119,6 +119,11 @@ impl<D: CaptureDevice> LiveSource<D> {
         self.mode
     }
 
+    /// The device (for back-end specific queries).
+    pub fn device(&self) -> &D {
+        &self.dev
+    }
+
     pub fn stats(&self) -> Arc<LiveStats> {
         self.stats.clone()
     }

@@ -69,16 +69,31 @@ pub fn list_cameras() -> Vec<CameraSummary> {
     all
 }
 
+/// An opened camera: the stream, its counters and what could not be set as asked.
+pub struct OpenedCamera {
+    pub source: Box<dyn crate::FrameSource>,
+    pub stats: std::sync::Arc<LiveStats>,
+    pub warnings: Vec<String>,
+}
+
+impl OpenedCamera {
+    #[allow(dead_code)] // unused when built without any device back end
+    fn new<D: CaptureDevice + 'static>(src: LiveSource<D>) -> Self {
+        OpenedCamera {
+            stats: src.stats(),
+            warnings: src.warnings.clone(),
+            source: Box::new(src),
+        }
+    }
+}
+
 /// Opens a live source from a spec (`v4l2:/dev/videoN`, `libcamera:<id>`).
-pub fn open_live(
-    spec: &str,
-    options: &LiveOptions,
-) -> Result<Box<dyn crate::FrameSource>, DeviceError> {
+pub fn open_live(spec: &str, options: &LiveOptions) -> Result<OpenedCamera, DeviceError> {
     if let Some(path) = spec.strip_prefix("v4l2:") {
         #[cfg(feature = "v4l2")]
         {
             let dev = v4l2::V4l2Device::open(path)?;
-            return Ok(Box::new(LiveSource::start(dev, options)?));
+            return Ok(OpenedCamera::new(LiveSource::start(dev, options)?));
         }
         #[cfg(not(feature = "v4l2"))]
         return Err(DeviceError::Other {
@@ -90,7 +105,7 @@ pub fn open_live(
         #[cfg(feature = "libcamera")]
         {
             let dev = libcamera::LibcameraDevice::open(id)?;
-            return Ok(Box::new(LiveSource::start(dev, options)?));
+            return Ok(OpenedCamera::new(LiveSource::start(dev, options)?));
         }
         #[cfg(not(feature = "libcamera"))]
         return Err(DeviceError::Other {
