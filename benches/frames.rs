@@ -38,6 +38,31 @@ fn frames(c: &mut Criterion) {
         k3: 1.163314,
         ..PinholeRadtan::pinhole(517.3, 516.5, 318.6, 255.3, 640, 480)
     };
+    // Camera conversions (issue 10): device buffer -> preallocated grey frame.
+    {
+        use sdslam::camera::device::convert::{encode, Converter};
+        use sdslam::camera::device::PixelFormat;
+        let mut yuyv = Vec::new();
+        encode::yuyv_from_rgb(&f.rgb, 640, 480, 1280, &mut yuyv);
+        let uvc_mjpeg = encode::strip_huffman_tables(&jpeg);
+        let mut g = c.benchmark_group("camera_convert_640x480");
+        for (name, format, data, colour) in [
+            ("yuyv_to_grey", PixelFormat::Yuyv, &yuyv, false),
+            ("yuyv_to_grey_and_rgb", PixelFormat::Yuyv, &yuyv, true),
+            (
+                "mjpeg_to_grey_and_rgb",
+                PixelFormat::Mjpeg,
+                &uvc_mjpeg,
+                true,
+            ),
+        ] {
+            let mut conv = Converter::new("bench", format, 640, 480, 0, colour);
+            g.bench_function(name, |b| {
+                b.iter(|| conv.convert(data, &mut out).expect("convert"))
+            });
+        }
+        g.finish();
+    }
     let map = RectifyMap::new(&cam);
     let mut dst = vec![0u8; 640 * 480];
     c.bench_function("rectify_gray_640x480", |b| {

@@ -3,6 +3,7 @@
 //! The core (everything but [`io`]) does no file or device IO: frames come in as buffers from
 //! [`sdslam_camera`] sources, poses and clouds go out as values.
 
+pub mod calibrate;
 pub mod camera_model;
 pub mod config;
 pub mod error;

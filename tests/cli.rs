@@ -549,3 +549,79 @@ fn interrupt_mid_run_writes_the_outputs_so_far() {
         assert!(out.path().join(f).is_file(), "{f} missing");
     }
 }
+
+/// `calibrate` on rendered chessboard views recovers the camera they were rendered with, and
+/// writes YAML that `run --calib` reads.
+#[test]
+fn calibrate_rendered_chessboards_recovers_the_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    let (ok, _, err) = sdslam(&["synth", "--chessboard", "--out", views.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let out = dir.path().join("cam.yaml");
+    let (ok, stdout, err) = sdslam(&[
+        "calibrate",
+        views.to_str().unwrap(),
+        "--board",
+        "9x6",
+        "--square",
+        "0.025",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("found in 15 of 15"), "{err}");
+    assert!(stdout.contains("reprojection RMS"), "{stdout}");
+    let got = sdslam::camera_model::Calibration::parse(
+        &std::fs::read_to_string(&out).unwrap(),
+        "cam.yaml",
+    )
+    .unwrap();
+    let want = sdslam::camera_model::Calibration::parse(
+        &std::fs::read_to_string(views.join("truth.yaml")).unwrap(),
+        "truth.yaml",
+    )
+    .unwrap();
+    let (g, w) = (got.camera, want.camera);
+    for (a, b) in [(g.fx, w.fx), (g.fy, w.fy), (g.cx, w.cx), (g.cy, w.cy)] {
+        assert!(((a - b) / b).abs() < 0.005, "{a} vs {b}");
+    }
+    assert!((g.k1 - w.k1).abs() < 0.01);
+    // Bad inputs: clear errors.
+    let (ok, _, err) = sdslam(&[
+        "calibrate",
+        views.to_str().unwrap(),
+        "--board",
+        "9",
+        "--square",
+        "0.025",
+        "--out",
+        "x.yaml",
+    ]);
+    assert!(!ok && err.contains("COLSxROWS"), "{err}");
+    let empty = dir.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let (ok, _, err) = sdslam(&[
+        "calibrate",
+        empty.to_str().unwrap(),
+        "--board",
+        "9x6",
+        "--square",
+        "0.025",
+        "--out",
+        "x.yaml",
+    ]);
+    assert!(!ok && err.contains("no PNG or JPEG images"), "{err}");
+    // The board named wrongly (7x5 instead of 9x6): found nowhere, said so.
+    let (ok, _, err) = sdslam(&[
+        "calibrate",
+        views.to_str().unwrap(),
+        "--board",
+        "7x5",
+        "--square",
+        "0.025",
+        "--out",
+        "x.yaml",
+    ]);
+    assert!(!ok && err.contains("found in 0 views"), "{err}");
+}

@@ -1,6 +1,7 @@
 //! Subcommands of `sdslam`.
 
 mod bench;
+mod calibrate;
 mod cameras;
 mod densify;
 mod eval;
@@ -33,6 +34,8 @@ pub struct Cli {
 enum Command {
     /// Run SLAM on a source and write trajectory.txt, keyframes.txt, semidense.ply and report.json.
     Run(run::RunArgs),
+    /// Calibrate a camera from chessboard views (a folder of images or a live camera).
+    Calibrate(calibrate::CalibrateArgs),
     /// List cameras (V4L2, and libcamera when built with it) with their formats, sizes and rates.
     Cameras,
     /// Save a camera's frames as a TUM RGB-D folder (rgb/, rgb.txt) that replays in `sdslam run`.
@@ -59,6 +62,7 @@ pub fn dispatch(cli: Cli) -> Result<()> {
         None => run::run(run::RunArgs::default_synthetic()),
         Some(Command::Run(a)) => run::run(a),
         Some(Command::Cameras) => cameras::cameras(),
+        Some(Command::Calibrate(a)) => calibrate::calibrate(a),
         Some(Command::Record(a)) => record::record(a),
         Some(Command::Eval(e)) => eval::eval(e),
         Some(Command::Densify(a)) => densify::densify(a),

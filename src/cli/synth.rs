@@ -22,9 +22,46 @@ pub struct SynthArgs {
     /// Write a ground-truth depth map every K frames (0: none).
     #[arg(long, default_value_t = 10)]
     depth_every: usize,
+    /// Instead of the sequence: 15 views of a 9x6 chessboard (25 mm squares) through a
+    /// distorted 640x480 camera, with that camera in `truth.yaml`, to try `sdslam calibrate`.
+    #[arg(long)]
+    chessboard: bool,
+}
+
+/// Renders the chessboard calibration set.
+fn synth_chessboard(out: &std::path::Path) -> Result<()> {
+    use sdslam::calibrate::{Board, BoardSize};
+    use sdslam::camera_model::{Calibration, PinholeRadtan};
+    use sdslam::synthetic::chessboard::{calibration_poses, render_chessboard};
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let truth = PinholeRadtan {
+        k1: -0.28,
+        k2: 0.09,
+        p1: 0.0012,
+        p2: -0.0008,
+        ..PinholeRadtan::pinhole(520.0, 517.0, 318.0, 244.0, 640, 480)
+    };
+    let board = Board {
+        size: BoardSize { cols: 9, rows: 6 },
+        square: 0.025,
+    };
+    let mut img = vec![0u8; 640 * 480];
+    for (k, pose) in calibration_poses(&truth, &board, 15, 11).iter().enumerate() {
+        render_chessboard(&truth, pose, &board, 2.0, 100 + k as u64, &mut img);
+        sdslam::io::write_gray_png(&out.join(format!("board_{k:02}.png")), 640, 480, &img)?;
+    }
+    let yaml = Calibration {
+        camera: truth,
+        fps: 30.0,
+    }
+    .to_orbslam_yaml("The camera the chessboard views were rendered with.");
+    write_atomic(&out.join("truth.yaml"), yaml.as_bytes())
 }
 
 pub fn synth(a: SynthArgs) -> Result<()> {
+    if a.chessboard {
+        return synth_chessboard(&a.out);
+    }
     if a.frames < 2 {
         return Err(Error::Invalid("--frames must be at least 2".into()));
     }

@@ -2,6 +2,7 @@
 //! along a smooth orbit that returns to its start, with exact poses and depth. It is the
 //! default input of `sdslam run` and the data of self-contained tests.
 
+pub mod chessboard;
 mod path;
 mod render;
 mod scene;

@@ -188,6 +188,8 @@ impl CaptureDevice for V4l2Device {
         match CaptureStream::next(stream) {
             Ok((data, meta)) => {
                 let flags = meta.flags;
+                // time_t is 32-bit on 32-bit ARM boards (Raspberry Pi OS 32-bit).
+                #[allow(clippy::unnecessary_cast)]
                 let bm = BufferMeta {
                     sequence: meta.sequence,
                     sec: meta.timestamp.sec as i64,
