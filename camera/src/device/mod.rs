@@ -89,6 +89,7 @@ impl OpenedCamera {
 
 /// Opens a live source from a spec (`v4l2:/dev/videoN`, `libcamera:<id>`).
 pub fn open_live(spec: &str, options: &LiveOptions) -> Result<OpenedCamera, DeviceError> {
+    let _ = options; // unused when built without any device back end
     if let Some(path) = spec.strip_prefix("v4l2:") {
         #[cfg(feature = "v4l2")]
         {
