@@ -100,3 +100,62 @@ fn online_cloud_behind_slam_is_accurate() {
         &cloud_accuracy(&cloud, &align.alignment, &seq.config.camera(), &frames),
     );
 }
+
+/// A Sim3 correction of the map (what loop closing applies around a loop) moves the cloud with
+/// it, scale included: each keyframe's depths follow its map points.
+#[test]
+fn cloud_follows_a_sim3_correction_of_the_map() {
+    let mut seq = sequence(120);
+    let calib = seq.config.calibration();
+    let mut system = System::new(&calib, &Config::default(), 120, false);
+    let mut f = Frame::new(seq.config.width, seq.config.height);
+    while let Ok(FrameStatus::Ready) = seq.next_frame(&mut f) {
+        system.process(&f.gray, Some(&f.rgb), f.timestamp, f.index);
+    }
+    assert!(system.finish());
+    let before = system.semidense_cloud();
+    assert!(before.len() > 10_000, "{} points", before.len());
+    // x' = s R x + t for every map point; camera poses follow (T_cw' = [R_cw R^T | s t_cw - R_cw R^T t]).
+    let (s, r, t) = (
+        1.3,
+        nalgebra::UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
+        nalgebra::Vector3::new(0.5, -0.2, 0.1),
+    );
+    {
+        let mut map = system.map();
+        let kfs: Vec<_> = map.keyframes().map(|(id, _)| id).collect();
+        for id in kfs {
+            let kf = map.keyframe_mut(id).unwrap();
+            let iso = kf.t_cw.0;
+            let rot = iso.rotation * r.inverse();
+            let tr = iso.translation.vector * s - rot * t;
+            kf.t_cw.0 = nalgebra::Isometry3::from_parts(tr.into(), rot);
+        }
+        let pts: Vec<_> = map.points().map(|(id, _)| id).collect();
+        for id in pts {
+            let p = map.point_mut(id).unwrap();
+            p.position = r * p.position * s + t;
+        }
+    }
+    let after = system.semidense_cloud();
+    assert_eq!(before.len(), after.len());
+    let mut worst = 0.0f64;
+    for (a, b) in before.iter().zip(&after) {
+        let pa = nalgebra::Vector3::new(
+            a.position[0] as f64,
+            a.position[1] as f64,
+            a.position[2] as f64,
+        );
+        let pb = nalgebra::Vector3::new(
+            b.position[0] as f64,
+            b.position[1] as f64,
+            b.position[2] as f64,
+        );
+        let want = r * pa * s + t;
+        worst = worst.max((pb - want).norm() / (want - t).norm().max(1e-3));
+    }
+    assert!(
+        worst < 1e-3,
+        "a point moved {worst:.2e} (relative) away from the corrected map"
+    );
+}

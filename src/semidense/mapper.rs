@@ -16,7 +16,7 @@ use super::{
 use crate::config::SemiDenseConfig;
 use crate::geometry::CameraFromWorld;
 use crate::io::CloudPoint;
-use crate::map::{KeyFrameId, Map};
+use crate::map::{KeyFrameId, Map, MapPointId};
 use crate::runtime::StageTimer;
 
 /// A reconstructed keyframe: its pixels live in the mapper's arena at `start..start + len`.
@@ -29,10 +29,43 @@ pub struct KeyframeDepth {
     pub neighbours: heapless::Vec<KeyFrameId, MAX_NEIGHBOURS>,
     start: usize,
     len: usize,
+    /// Map points seen by the keyframe with their inverse depths at reconstruction: the
+    /// anchors of its depth scale. A Sim3 loop correction or global BA rescales the map around
+    /// a keyframe; the ratio of then/now inverse depths of these points carries the depths along.
+    anchors: heapless::Vec<(MapPointId, f32), MAX_ANCHORS>,
+    /// Depth scale when the pose was last read (see [`anchor_scale`]).
+    pub scale: f32,
     /// The inter-keyframe check has run.
     pub checked: bool,
     /// Depth + intra time, milliseconds (inter is added when it runs).
     elapsed_ms: f64,
+}
+
+/// Map points kept per keyframe to follow its scale.
+pub const MAX_ANCHORS: usize = 48;
+
+/// Depth scale of a keyframe now relative to its reconstruction (depth_now = depth_then x
+/// scale): the median ratio over its anchor points still in the map, 1 when none is left.
+fn anchor_scale(map: &Map, e: &KeyframeDepth, scratch: &mut Vec<f32>) -> f32 {
+    scratch.clear();
+    for (mp, rho_then) in &e.anchors {
+        if let Some(p) = map.point(*mp) {
+            let z = e.t_cw.transform(&p.position).z;
+            if z > 0.0 && scratch.len() < scratch.capacity() {
+                scratch.push((*rho_then as f64 * z) as f32);
+            }
+        }
+    }
+    if scratch.is_empty() {
+        return 1.0;
+    }
+    let mid = scratch.len() / 2;
+    let (_, m, _) = scratch.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+    if m.is_finite() && *m > 0.0 {
+        *m
+    } else {
+        1.0
+    }
 }
 
 /// A pixel of the arena: the intra-checked estimate (what neighbours are checked against),
@@ -175,7 +208,7 @@ impl SemiDenseMapper {
 
     fn reconstruct(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
         let t0 = Instant::now();
-        let Some((t_cw, timestamp, serial, has_color, neighbours, rho_range)) =
+        let Some((t_cw, timestamp, serial, has_color, neighbours, rho_range, anchors)) =
             self.snapshot(map, kf)
         else {
             self.stats.keyframes_skipped += 1;
@@ -243,6 +276,8 @@ impl SemiDenseMapper {
             neighbours: nb,
             start,
             len: self.arena.len() - start,
+            anchors,
+            scale: 1.0,
             checked: false,
             elapsed_ms: t0.elapsed().as_secs_f64() * 1e3,
         });
@@ -266,19 +301,27 @@ impl SemiDenseMapper {
         bool,
         heapless::Vec<Neighbour, MAX_NEIGHBOURS>,
         (f64, f64),
+        heapless::Vec<(MapPointId, f32), MAX_ANCHORS>,
     )> {
         let map = map.lock().unwrap_or_else(|e| e.into_inner());
         let k = map.keyframe(kf)?;
         if k.gray.len() != self.gray_ref.capacity() {
             return None;
         }
-        // Prior from the ORB map points' inverse depths in this keyframe.
+        // Prior from the ORB map points' inverse depths in this keyframe; a spread of them
+        // (every few) anchors the keyframe's depth scale.
         self.scratch_f32.clear();
-        for (_, mp) in k.observed() {
+        let mut anchors = heapless::Vec::new();
+        let n_obs = k.observed().count();
+        let stride = n_obs.div_ceil(MAX_ANCHORS).max(1);
+        for (n, (_, mp)) in k.observed().enumerate() {
             if let Some(p) = map.point(mp) {
                 let z = k.t_cw.transform(&p.position).z;
                 if z > 0.0 && self.scratch_f32.len() < self.scratch_f32.capacity() {
                     self.scratch_f32.push((1.0 / z) as f32);
+                }
+                if z > 0.0 && n % stride == 0 {
+                    let _ = anchors.push((mp, (1.0 / z) as f32));
                 }
             }
         }
@@ -340,6 +383,7 @@ impl SemiDenseMapper {
             k.has_color,
             neighbours,
             rho_range,
+            anchors,
         ))
     }
 
@@ -364,9 +408,11 @@ impl SemiDenseMapper {
     /// Re-reads current poses of an entry and its neighbours from the map (loop closure and BA
     /// move keyframes after reconstruction).
     fn refresh_poses(&mut self, map: &Map, e: usize) {
-        let refresh = |d: &mut KeyframeDepth| {
+        let mut scratch = std::mem::take(&mut self.scratch_f32);
+        let mut refresh = |d: &mut KeyframeDepth| {
             if let Some(k) = map.keyframe(d.keyframe) {
                 d.t_cw = k.t_cw;
+                d.scale = anchor_scale(map, d, &mut scratch);
             }
         };
         refresh(&mut self.entries[e]);
@@ -375,6 +421,7 @@ impl SemiDenseMapper {
                 refresh(d);
             }
         }
+        self.scratch_f32 = scratch;
     }
 
     fn check(&mut self, map: &Mutex<Map>, e: usize) {
@@ -390,14 +437,24 @@ impl SemiDenseMapper {
                 continue;
             };
             let t_ji = d.t_cw.0 * me.t_cw.0.inverse();
-            let pixels = self.arena[d.start..d.start + d.len].iter().map(|p| p.raw);
+            // Inverse depths in today's map scale (depth x scale).
+            let s = 1.0 / d.scale;
+            let pixels = self.arena[d.start..d.start + d.len].iter().map(|p| {
+                let mut r = p.raw;
+                r.rho *= s;
+                r.sigma *= s;
+                r
+            });
             self.inter.add_neighbour(pixels, &t_ji);
         }
-        let (start, len) = (me.start, me.len);
+        let (start, len, scale) = (me.start, me.len, me.scale);
         let lambda_n = self.config.lambda_n;
         let inter = &self.inter;
         for p in &mut self.arena[start..start + len] {
-            p.rho = inter.check(p.raw.idx, p.raw.rho, lambda_n).unwrap_or(0.0);
+            // Checked in today's scale, stored in the reconstruction's (as `raw`).
+            p.rho = inter
+                .check(p.raw.idx, p.raw.rho / scale, lambda_n)
+                .map_or(0.0, |rho| rho * scale);
         }
         let dt = t0.elapsed();
         self.stats.busy_s += dt.as_secs_f64();
@@ -413,14 +470,22 @@ impl SemiDenseMapper {
     pub fn cloud(&self, map: &Map, out: &mut Vec<CloudPoint>) {
         let k = self.reconstructor.k;
         let w = self.reconstructor.width;
+        let mut scratch = Vec::with_capacity(MAX_ANCHORS);
         for e in self.entries.iter().filter(|e| e.checked) {
-            let t_wc = map
-                .keyframe(e.keyframe)
-                .map_or(e.t_cw, |kf| kf.t_cw)
-                .inverse();
+            let (t_cw, scale) = match map.keyframe(e.keyframe) {
+                Some(kf) => {
+                    let now = KeyframeDepth {
+                        t_cw: kf.t_cw,
+                        ..e.clone()
+                    };
+                    (kf.t_cw, anchor_scale(map, &now, &mut scratch) as f64)
+                }
+                None => (e.t_cw, e.scale as f64),
+            };
+            let t_wc = t_cw.inverse();
             for p in self.pixels(e).filter(|p| p.rho > 0.0) {
                 let i = p.raw.idx as usize;
-                let x_c = k.ray((i % w) as f64, (i / w) as f64) / p.rho as f64;
+                let x_c = k.ray((i % w) as f64, (i / w) as f64) * (scale / p.rho as f64);
                 let x_w = t_wc.transform(&x_c);
                 out.push(CloudPoint {
                     position: [x_w.x as f32, x_w.y as f32, x_w.z as f32],
@@ -438,7 +503,7 @@ impl SemiDenseMapper {
         if let Some(d) = self.entries.get(e) {
             for p in self.pixels(d).filter(|p| p.rho > 0.0) {
                 if let Some(o) = out.get_mut(p.raw.idx as usize) {
-                    *o = 1.0 / p.rho;
+                    *o = d.scale / p.rho;
                 }
             }
         }
