@@ -8,6 +8,10 @@ use image::{ColorType, ImageDecoder, ImageReader};
 use crate::frame::{gray_from_rgb, luma};
 use crate::{Frame, SourceError};
 
+/// Largest image accepted (8K video is 33 Mpixel): a corrupt header cannot make sdslam allocate
+/// gigabytes.
+pub const MAX_PIXELS: u64 = 64_000_000;
+
 /// Decodes encoded images into a [`Frame`], keeping its scratch buffers between calls.
 #[derive(Default)]
 pub struct ImageDecoderBuf {
@@ -64,6 +68,12 @@ impl ImageDecoderBuf {
         let (w, h) = dec.dimensions();
         if w == 0 || h == 0 {
             return Err(derr(format!("image has zero size {w}x{h}")));
+        }
+        // A corrupt header can claim any size: refuse before allocating for it.
+        if w as u64 * h as u64 > MAX_PIXELS {
+            return Err(derr(format!(
+                "image claims {w}x{h} pixels, more than the {MAX_PIXELS} sdslam accepts"
+            )));
         }
         if let Some((ew, eh)) = expect {
             if (w, h) != (ew, eh) {
@@ -174,6 +184,38 @@ mod tests {
         assert!(f.has_color);
         let g = f.gray_at(5, 5) as i32;
         assert!((g - luma(200, 100, 50) as i32).abs() <= 3, "{g}");
+    }
+
+    #[test]
+    fn rejects_headers_claiming_a_huge_image() {
+        // A valid 1x1 PNG whose IHDR claims 60000x60000 (the CRC is not checked before the
+        // size is read by every decoder, so fix it up to be sure the size check is what fails).
+        let mut png = encode_png_gray(1, 1);
+        png[16..20].copy_from_slice(&60000u32.to_be_bytes());
+        png[20..24].copy_from_slice(&60000u32.to_be_bytes());
+        let crc = crc32(&png[12..29]);
+        png[29..33].copy_from_slice(&crc.to_be_bytes());
+        let mut f = Frame::new(1, 1);
+        let e = ImageDecoderBuf::new()
+            .decode(&png, Path::new("big.png"), None, &mut f)
+            .unwrap_err();
+        assert!(e.to_string().contains("60000x60000"), "{e}");
+        assert_eq!(f.gray.len(), 1, "nothing was allocated for it");
+    }
+
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = 0xFFFF_FFFFu32;
+        for &b in bytes {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xEDB8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
     }
 
     #[test]

@@ -156,7 +156,11 @@ pub fn open(
                 cfg.frames = n.min(cfg.frames);
             }
             let calibration = match calib {
-                Some(p) => load_calibration(p)?,
+                Some(p) => {
+                    let c = load_calibration(p)?;
+                    c.check_image_size(cfg.width, cfg.height, &p.display().to_string())?;
+                    c
+                }
                 None => cfg.calibration(),
             };
             let seq = SyntheticSequence::new(cfg.clone());
