@@ -164,7 +164,7 @@ fn fuzz_image_lists() {
         .collect();
     let euroc = read(d.join("euroc_v101_micro/mav0/cam0/data.csv"));
     let p = Path::new("list");
-    fuzz("tum rgb.txt", &[tum.clone()], |b| {
+    fuzz("tum rgb.txt", &[tum], |b| {
         if let Ok(l) = parse_tum(&text(b), p) {
             check_list(&l);
         }

@@ -219,7 +219,7 @@ mod tests {
     }
 
     impl Pattern {
-        fn new(w: u32, h: u32, n: usize) -> Box<dyn FrameSource> {
+        fn boxed(w: u32, h: u32, n: usize) -> Box<dyn FrameSource> {
             Box::new(Pattern {
                 info: SourceInfo {
                     name: "pattern".into(),
@@ -294,14 +294,14 @@ mod tests {
 
     #[test]
     fn grey_is_preferred_and_exact() {
-        let dev = FakeDevice::new("fake0", Pattern::new(64, 48, 5));
+        let dev = FakeDevice::new("fake0", Pattern::boxed(64, 48, 5));
         let mut src = LiveSource::start(dev, &options(None)).unwrap();
         assert_eq!(src.mode().format, PixelFormat::Grey);
         assert!(!src.info().has_color);
         let (_, frames, err) = collect(&mut src);
         assert!(err.is_none());
         assert_eq!(frames.len(), 5);
-        let mut scene = Pattern::new(64, 48, 5);
+        let mut scene = Pattern::boxed(64, 48, 5);
         let mut want = Frame::new(64, 48);
         for got in &frames {
             scene.next_frame(&mut want).unwrap();
@@ -312,13 +312,13 @@ mod tests {
     #[test]
     fn yuyv_and_mjpeg_give_the_scene_in_grey_and_colour() {
         for (format, tol) in [(PixelFormat::Yuyv, 0.0), (PixelFormat::Mjpeg, 3.0)] {
-            let dev = FakeDevice::new("fake0", Pattern::new(64, 48, 3));
+            let dev = FakeDevice::new("fake0", Pattern::boxed(64, 48, 3));
             let mut src = LiveSource::start(dev, &options(Some(format))).unwrap();
             assert!(src.info().has_color);
             let (_, frames, err) = collect(&mut src);
             assert!(err.is_none(), "{format}: {err:?}");
             assert_eq!(frames.len(), 3);
-            let mut scene = Pattern::new(64, 48, 3);
+            let mut scene = Pattern::boxed(64, 48, 3);
             let mut want = Frame::new(64, 48);
             scene.next_frame(&mut want).unwrap();
             // Limited-range luma from YUYV, plus JPEG loss for MJPEG.
@@ -352,7 +352,7 @@ mod tests {
 
     #[test]
     fn timestamps_are_monotonic_seconds_at_the_camera_rate() {
-        let dev = FakeDevice::new("fake0", Pattern::new(32, 16, 6));
+        let dev = FakeDevice::new("fake0", Pattern::boxed(32, 16, 6));
         let mut src = LiveSource::start(dev, &options(Some(PixelFormat::Yuyv))).unwrap();
         let (_, frames, _) = collect(&mut src);
         for (i, w) in frames.windows(2).enumerate() {
@@ -371,7 +371,7 @@ mod tests {
             unplug_at: Some(8),
             ..Default::default()
         };
-        let dev = FakeDevice::new("/dev/video7", Pattern::new(32, 16, 20)).with_faults(faults);
+        let dev = FakeDevice::new("/dev/video7", Pattern::boxed(32, 16, 20)).with_faults(faults);
         let mut src = LiveSource::start(dev, &options(Some(PixelFormat::Yuyv))).unwrap();
         let stats = src.stats();
         let (statuses, frames, err) = collect(&mut src);
@@ -399,7 +399,7 @@ mod tests {
             stall_at: Some(2),
             ..Default::default()
         };
-        let dev = FakeDevice::new("/dev/video3", Pattern::new(32, 16, 20)).with_faults(faults);
+        let dev = FakeDevice::new("/dev/video3", Pattern::boxed(32, 16, 20)).with_faults(faults);
         let mut src = LiveSource::start(dev, &options(None)).unwrap();
         let (_, frames, err) = collect(&mut src);
         assert_eq!(frames.len(), 2);
@@ -412,7 +412,7 @@ mod tests {
 
     #[test]
     fn fixed_exposure_and_gain_are_set_and_clamped() {
-        let dev = FakeDevice::new("fake0", Pattern::new(32, 16, 1));
+        let dev = FakeDevice::new("fake0", Pattern::boxed(32, 16, 1));
         let opts = LiveOptions {
             exposure: Some(Exposure::Manual { micros: 8000 }),
             gain: Some(1000),
@@ -428,7 +428,7 @@ mod tests {
 
     #[test]
     fn a_mode_of_another_size_is_refused() {
-        let dev = FakeDevice::new("fake0", Pattern::new(32, 16, 1));
+        let dev = FakeDevice::new("fake0", Pattern::boxed(32, 16, 1));
         let opts = LiveOptions {
             request: ModeRequest {
                 size: Some((640, 480)),
@@ -439,7 +439,7 @@ mod tests {
         let e = LiveSource::start(dev, &opts).err().unwrap();
         assert!(e.to_string().contains("640x480"), "{e}");
         // H.264-only cameras are refused with the modes listed.
-        let dev = FakeDevice::new("fake0", Pattern::new(32, 16, 1)).with_modes(vec![Mode {
+        let dev = FakeDevice::new("fake0", Pattern::boxed(32, 16, 1)).with_modes(vec![Mode {
             format: PixelFormat::Other(*b"H264"),
             width: 32,
             height: 16,
@@ -451,7 +451,7 @@ mod tests {
 
     #[test]
     fn behind_live_pacing_a_slow_consumer_gets_the_newest_frames() {
-        let mut dev = FakeDevice::new("fake0", Pattern::new(32, 16, 40));
+        let mut dev = FakeDevice::new("fake0", Pattern::boxed(32, 16, 40));
         dev.real_time = true;
         let src = LiveSource::start(dev, &options(Some(PixelFormat::Yuyv))).unwrap();
         let mut paced = PacedSource::spawn(src, Pacing::Live).unwrap();
