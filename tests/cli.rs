@@ -625,3 +625,46 @@ fn calibrate_rendered_chessboards_recovers_the_camera() {
     ]);
     assert!(!ok && err.contains("found in 0 views"), "{err}");
 }
+
+/// A worker thread that panics mid-run (fault injected through `SDSLAM_FAULT`): the run stops
+/// without hanging, says which thread failed, exits non-zero and still writes every output.
+#[test]
+fn a_panicking_worker_thread_stops_the_run_with_outputs_written() {
+    for (fault, thread) in [
+        ("panic:local_mapping", "local-mapping"),
+        ("panic:semidense", "semi-dense"),
+    ] {
+        let out = tempfile::tempdir().unwrap();
+        let o = std::process::Command::new(common::sdslam_bin())
+            .args([
+                "run",
+                "synthetic",
+                "--frames",
+                "200",
+                "--out",
+                out.path().to_str().unwrap(),
+            ])
+            .env("SDSLAM_FAULT", fault)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{fault}: {err}");
+        assert!(
+            err.contains(thread) && err.contains("every output was written"),
+            "{fault}: {err}"
+        );
+        let r = report(out.path());
+        assert!(
+            r["stopped_early"].as_str().unwrap().contains("panicked"),
+            "{fault}: {r}"
+        );
+        for f in [
+            "trajectory.txt",
+            "keyframes.txt",
+            "semidense.ply",
+            "report.json",
+        ] {
+            assert!(out.path().join(f).is_file(), "{fault}: {f} missing");
+        }
+    }
+}

@@ -116,14 +116,17 @@ impl ImageListSource {
         kind: ListKind,
     ) -> Result<Self, SourceError> {
         for e in &entries {
-            if !base.join(&e.file).is_file() {
+            let f = base.join(&e.file);
+            if !f.is_file() {
+                let what = if f.exists() {
+                    "which is not a file"
+                } else {
+                    "which does not exist"
+                };
                 return Err(SourceError::List {
                     path: list_path.to_path_buf(),
                     line: e.line,
-                    message: format!(
-                        "names {} which does not exist",
-                        base.join(&e.file).display()
-                    ),
+                    message: format!("names {} {what}", f.display()),
                 });
             }
         }

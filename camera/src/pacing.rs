@@ -274,15 +274,69 @@ impl FrameSource for PacedSource {
                 Ok(FrameStatus::Ready)
             }
             Ok(Msg::Skipped { index, reason }) => Ok(FrameStatus::Skipped { index, reason }),
-            Ok(Msg::End) | Err(_) => {
+            Ok(Msg::End) => {
                 self.ended = true;
                 Ok(FrameStatus::End)
+            }
+            // The source thread went away without saying End: it panicked.
+            Err(_) => {
+                self.ended = true;
+                let why = match self.handle.take().map(|h| h.join()) {
+                    Some(Err(p)) => p
+                        .downcast_ref::<&str>()
+                        .map(|s| s.to_string())
+                        .or_else(|| p.downcast_ref::<String>().cloned())
+                        .unwrap_or_else(|| "unknown panic".into()),
+                    _ => "it stopped without ending the stream".into(),
+                };
+                Err(SourceError::Thread(format!(
+                    "the source thread failed: {why}"
+                )))
             }
             Ok(Msg::Error(e)) => {
                 self.ended = true;
                 Err(e)
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod panic_tests {
+    use super::*;
+
+    struct Panics(SourceInfo, u32);
+    impl FrameSource for Panics {
+        fn info(&self) -> &SourceInfo {
+            &self.0
+        }
+        fn next_frame(&mut self, out: &mut Frame) -> Result<FrameStatus, SourceError> {
+            self.1 += 1;
+            if self.1 == 3 {
+                panic!("decoder bug");
+            }
+            out.index = self.1 as u64;
+            Ok(FrameStatus::Ready)
+        }
+    }
+
+    #[test]
+    fn a_panicking_source_is_an_error_not_an_end() {
+        let info = SourceInfo {
+            name: "p".into(),
+            width: 4,
+            height: 4,
+            fps: 30.0,
+            has_color: false,
+            len: None,
+        };
+        let mut p = PacedSource::spawn(Panics(info, 0), Pacing::AsFastAsPossible).unwrap();
+        let mut f = Frame::new(4, 4);
+        assert_eq!(p.next_frame(&mut f).unwrap(), FrameStatus::Ready);
+        assert_eq!(p.next_frame(&mut f).unwrap(), FrameStatus::Ready);
+        let e = p.next_frame(&mut f).unwrap_err();
+        assert!(e.to_string().contains("decoder bug"), "{e}");
+        assert_eq!(p.next_frame(&mut f).unwrap(), FrameStatus::End);
     }
 }
 

@@ -162,6 +162,15 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     };
     let mut warned_skip = false;
     loop {
+        if let Some(t) = system.failed_thread() {
+            report.stopped_early = Some(format!(
+                "the {t} thread failed (panicked); outputs written from the run so far"
+            ));
+            eprintln!(
+                "error: the {t} thread failed; stopping and writing the outputs computed so far"
+            );
+            break;
+        }
         if super::signal::interrupted() {
             report.stopped_early =
                 Some("interrupted (Ctrl-C); outputs written from the run so far".into());
@@ -235,9 +244,10 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     report.wall_time_s = started.elapsed().as_secs_f64();
     report.peak_rss_mb = io::peak_rss_mb();
     let finishing = Instant::now();
-    if !system.finish() {
+    let threads_ok = system.finish();
+    if !threads_ok {
         report.stopped_early.get_or_insert_with(|| {
-            "the local-mapping thread panicked; outputs written from the map as it was".into()
+            "a worker thread panicked; outputs written from the map as it was".into()
         });
     }
     report.timing_ms.tracking = frame_timer.percentiles();
@@ -323,6 +333,16 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         system.state(),
         a.out.display()
     );
+    if !threads_ok {
+        return Err(sdslam::Error::Invalid(format!(
+            "{}; every output was written to {}",
+            report
+                .stopped_early
+                .as_deref()
+                .unwrap_or("a worker thread failed"),
+            a.out.display()
+        )));
+    }
     Ok(RunOutcome {
         report,
         latencies_ms: frame_timer.samples_ms().to_vec(),

@@ -381,7 +381,11 @@ impl LocalMapper {
             }
         }
         for &mp in &self.ba_points {
-            map.update_point_geometry(mp);
+            if depth_unobservable(map, mp) {
+                map.erase_point(mp);
+            } else {
+                map.update_point_geometry(mp);
+            }
         }
     }
 
@@ -438,4 +442,37 @@ pub fn median_depth(map: &Map, kf: KeyFrameId) -> Option<f64> {
     }
     d.sort_by(|a, b| a.total_cmp(b));
     Some(d[d.len() / 2])
+}
+
+/// Below half the triangulation gate's angle (1.15 degrees), the rays of a point's observations
+/// no longer fix its depth.
+const MIN_COS_PARALLAX_KEPT: f64 = 0.99995;
+
+/// True when BA left point `mp` with a depth its observations cannot fix: behind one of its
+/// cameras, or seen only along nearly parallel rays (e.g. every observer at the same place
+/// after a rotation in place), where BA lets it drift towards infinity.
+fn depth_unobservable(map: &Map, mp: crate::map::MapPointId) -> bool {
+    let Some(p) = map.point(mp) else { return false };
+    let mut rays: heapless::Vec<nalgebra::Vector3<f64>, 16> = heapless::Vec::new();
+    for &(kf, _) in &p.observations {
+        let Some(k) = map.keyframe(kf) else { continue };
+        if k.t_cw.transform(&p.position).z <= 0.0 {
+            return true;
+        }
+        let r = p.position - k.t_cw.center();
+        let n = r.norm();
+        if n > 0.0 && rays.push(r / n).is_err() {
+            break;
+        }
+    }
+    if rays.len() < 2 {
+        return false;
+    }
+    let mut min_cos = 1.0f64;
+    for i in 0..rays.len() {
+        for j in i + 1..rays.len() {
+            min_cos = min_cos.min(rays[i].dot(&rays[j]));
+        }
+    }
+    min_cos > MIN_COS_PARALLAX_KEPT
 }

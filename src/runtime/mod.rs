@@ -1,5 +1,6 @@
 //! Runtime: stage timing, the run report, and (with the SLAM core) threads and deadlines.
 
+pub mod faults;
 mod priority;
 mod report;
 mod semidense_worker;

@@ -48,9 +48,14 @@ impl SemiDenseWorker {
             .spawn(move || {
                 super::lower_current_thread_priority(nice);
                 super::pin_current_thread(&cpus);
+                let mut n = 0;
                 while let Ok(m) = rx.recv() {
                     match m {
-                        Message::KeyFrame(kf) => mapper.on_keyframe(&map, kf),
+                        Message::KeyFrame(kf) => {
+                            n += 1;
+                            super::faults::maybe_panic("panic:semidense", n);
+                            mapper.on_keyframe(&map, kf)
+                        }
                         Message::Reset => mapper.reset(),
                     }
                 }
@@ -92,6 +97,17 @@ impl SemiDenseWorker {
                 let _ = tx.send(Message::Reset);
             }
             _ => {}
+        }
+    }
+
+    /// True when the thread has died before `finish` (it only ends early by panicking).
+    pub fn has_failed(&self) -> bool {
+        match self {
+            SemiDenseWorker::Thread {
+                handle: Some(h), ..
+            } => h.is_finished(),
+            SemiDenseWorker::Failed => true,
+            _ => false,
         }
     }
 

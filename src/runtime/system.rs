@@ -267,6 +267,20 @@ impl System {
         ok
     }
 
+    /// The worker thread that has died (panicked) during the run, if any: the caller should
+    /// stop feeding frames, call [`finish`](Self::finish) and write what it has.
+    pub fn failed_thread(&self) -> Option<&'static str> {
+        if let Mapping::Thread {
+            handle: Some(h), ..
+        } = &self.mapping
+        {
+            if h.is_finished() {
+                return Some("local-mapping");
+            }
+        }
+        self.semidense.has_failed().then_some("semi-dense")
+    }
+
     /// Semi-dense results (after [`finish`](Self::finish), or inline mode at any time).
     pub fn semidense(&self) -> Option<&SemiDenseMapper> {
         self.semidense.mapper()

@@ -3,6 +3,7 @@
 //! default input of `sdslam run` and the data of self-contained tests.
 
 pub mod chessboard;
+
 mod path;
 mod render;
 mod scene;
@@ -16,6 +17,7 @@ use sdslam_camera::{Frame, FrameSource, FrameStatus, SourceError, SourceInfo};
 
 use crate::camera_model::{Calibration, PinholeRadtan};
 use crate::eval::TimedPose;
+use crate::geometry::WorldFromCamera;
 
 /// Parameters of the built-in sequence.
 #[derive(Clone, Debug, PartialEq)]
@@ -122,6 +124,15 @@ impl SyntheticSequence {
         out.has_color = true;
         out.timestamp = self.config.timestamp(i);
         out.index = i as u64;
+    }
+
+    /// Renders the scene from any pose `t_wc` (for tests of unusual motion); `seed` varies the
+    /// noise. Timestamp and index are left to the caller.
+    pub fn render_pose(&self, t_wc: &WorldFromCamera, seed: u64, out: &mut Frame) {
+        out.ensure_size(self.config.width, self.config.height);
+        self.renderer.render(t_wc, seed, &mut out.rgb, None);
+        sdslam_camera::frame::gray_from_rgb(out);
+        out.has_color = true;
     }
 
     /// Renders frame `i` with its planar depth (metres along the optical axis, 0 = none).

@@ -26,7 +26,10 @@ pub(super) fn spawn_mapper(
             let mut timer = StageTimer::with_capacity(expected.max(16));
             let mut loop_timer = StageTimer::with_capacity(64);
             let mut gba: Option<std::thread::JoinHandle<()>> = None;
+            let mut n = 0;
             while let Ok(kf) = rx.recv() {
+                n += 1;
+                crate::runtime::faults::maybe_panic("panic:local_mapping", n);
                 idle_t.store(false, Ordering::Release);
                 let t = Instant::now();
                 let has_ba = mapper.prepare(&mut lock(&map), kf);
