@@ -668,3 +668,83 @@ fn a_panicking_worker_thread_stops_the_run_with_outputs_written() {
         }
     }
 }
+
+/// Every kind of bad image in the middle of a replay is skipped, counted and warned about once;
+/// a sequence with no readable image at all is a clear error.
+#[test]
+fn every_kind_of_bad_image_mid_sequence_is_skipped_and_counted() {
+    let d = tempfile::tempdir().unwrap();
+    let tum = d.path().join("tum");
+    std::fs::create_dir_all(tum.join("rgb")).unwrap();
+    let mut list = String::new();
+    for i in 0..8 {
+        let name = format!("rgb/{i}.png");
+        image::GrayImage::from_fn(8, 8, |x, y| image::Luma([(x * 20 + y * 7 + i) as u8]))
+            .save(tum.join(&name))
+            .unwrap();
+        list.push_str(&format!("{}.0 {name}\n", i + 1));
+    }
+    std::fs::write(tum.join("rgb.txt"), &list).unwrap();
+    std::fs::write(tum.join("camera.yaml"), "%YAML:1.0\nCamera.fx: 5\nCamera.fy: 5\nCamera.cx: 4\nCamera.cy: 4\nCamera.width: 8\nCamera.height: 8\n").unwrap();
+    // 1: zero bytes; 2: garbage; 3: a truncated JPEG; 4: the wrong size; 5: a truncated PNG.
+    std::fs::write(tum.join("rgb/1.png"), b"").unwrap();
+    std::fs::write(tum.join("rgb/2.png"), b"this is not an image at all").unwrap();
+    let mut jpeg = Vec::new();
+    image::GrayImage::from_pixel(8, 8, image::Luma([9]))
+        .write_to(
+            &mut std::io::Cursor::new(&mut jpeg),
+            image::ImageFormat::Jpeg,
+        )
+        .unwrap();
+    std::fs::write(tum.join("rgb/3.png"), &jpeg[..jpeg.len() / 2]).unwrap();
+    image::GrayImage::new(16, 8)
+        .save(tum.join("rgb/4.png"))
+        .unwrap();
+    let png = std::fs::read(tum.join("rgb/5.png")).unwrap();
+    std::fs::write(tum.join("rgb/5.png"), &png[..png.len() - 20]).unwrap();
+    let out = d.path().join("out");
+    let (ok, _, err) = sdslam(&["run", tum.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        err.matches("warning: skipping").count(),
+        1,
+        "warned once: {err}"
+    );
+    let r = report(&out);
+    assert_eq!(r["skipped_frames"], 5, "{r}");
+    assert_eq!(r["frames"], 3, "{r}");
+    // No readable image at all: a clear error naming a file.
+    for i in 0..8 {
+        std::fs::write(tum.join(format!("rgb/{i}.png")), b"").unwrap();
+    }
+    let (ok, _, err) = sdslam(&["run", tum.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(
+        !ok && err.contains("rgb/0.png") && !err.contains("panicked"),
+        "{err}"
+    );
+    // A list naming a directory, a NaN timestamp, a non-numeric one.
+    std::fs::create_dir_all(tum.join("rgb/dir.png")).unwrap();
+    for (text, needle) in [
+        ("1.0 rgb/dir.png\n", "not a file"),
+        ("nan rgb/0.png\n", "rgb.txt:1"),
+        ("1.0 rgb/0.png\nabc rgb/1.png\n", "rgb.txt:2"),
+    ] {
+        std::fs::write(tum.join("rgb.txt"), text).unwrap();
+        let (ok, _, err) = sdslam(&["run", tum.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        assert!(!ok && err.contains(needle), "{text:?}: {err}");
+    }
+    // A configuration value out of range names the field.
+    let cfg = d.path().join("c.toml");
+    std::fs::write(&cfg, "[orb]\nscale_factor = 1.0\n").unwrap();
+    let (ok, _, err) = sdslam(&[
+        "run",
+        "synthetic",
+        "--frames",
+        "1",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("orb.scale_factor"), "{err}");
+}
