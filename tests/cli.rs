@@ -748,3 +748,69 @@ fn every_kind_of_bad_image_mid_sequence_is_skipped_and_counted() {
     ]);
     assert!(!ok && err.contains("orb.scale_factor"), "{err}");
 }
+
+/// `--save-map`, then `--load-map --localize-only`: the second run tracks against the first
+/// run's map without changing it; a damaged map file is a clear error.
+#[test]
+fn save_map_then_localize_only_and_a_damaged_map_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let map = d.path().join("room.map");
+    let (o1, o2) = (d.path().join("a"), d.path().join("b"));
+    let (ok, _, err) = sdslam(&[
+        "run",
+        "synthetic",
+        "--frames",
+        "150",
+        "--no-semidense",
+        "--save-map",
+        map.to_str().unwrap(),
+        "--out",
+        o1.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, _, err) = sdslam(&[
+        "run",
+        "synthetic",
+        "--frames",
+        "150",
+        "--no-semidense",
+        "--load-map",
+        map.to_str().unwrap(),
+        "--localize-only",
+        "--out",
+        o2.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("loaded map"), "{err}");
+    let (r1, r2) = (report(&o1), report(&o2));
+    assert_eq!(
+        r1["keyframes"], r2["keyframes"],
+        "localisation changed the keyframes"
+    );
+    assert!(r2["tracked_frames"].as_u64().unwrap() >= 145, "{r2}");
+    let mut bytes = std::fs::read(&map).unwrap();
+    bytes.truncate(bytes.len() / 2);
+    std::fs::write(&map, &bytes).unwrap();
+    let (ok, _, err) = sdslam(&[
+        "run",
+        "synthetic",
+        "--frames",
+        "5",
+        "--load-map",
+        map.to_str().unwrap(),
+        "--out",
+        o2.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("room.map") && err.contains("truncated"),
+        "{err}"
+    );
+    let (ok, _, err) = sdslam(&[
+        "run",
+        "synthetic",
+        "--localize-only",
+        "--out",
+        o2.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("--load-map"), "{err}");
+}

@@ -49,6 +49,15 @@ pub struct RunArgs {
     /// (16-bit, depth x 5000 in map units, 0 = no estimate).
     #[arg(long)]
     depth_maps: bool,
+    /// Save the map at the end (versioned binary with checksum, written atomically).
+    #[arg(long, value_name = "FILE")]
+    save_map: Option<PathBuf>,
+    /// Start from a saved map (same camera and vocabulary); tracking relocalises against it.
+    #[arg(long, value_name = "FILE")]
+    load_map: Option<PathBuf>,
+    /// Track against the loaded map without changing it (no keyframes, no BA).
+    #[arg(long, requires = "load_map")]
+    localize_only: bool,
     #[command(flatten)]
     pub camera: source::CameraArgs,
 }
@@ -67,6 +76,9 @@ impl RunArgs {
             depth_maps: false,
             drop: None,
             camera: source::CameraArgs::default(),
+            save_map: None,
+            load_map: None,
+            localize_only: false,
         }
     }
 }
@@ -142,6 +154,20 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         info.len.unwrap_or(10_000),
         !a.deterministic,
     );
+    if let Some(path) = &a.load_map {
+        let bytes = std::fs::read(path).map_err(|e| sdslam::Error::io(path, e))?;
+        let snap = sdslam::map::persist::MapSnapshot::decode(&bytes)
+            .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", path.display())))?;
+        let n = system
+            .load_map(&snap)
+            .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", path.display())))?;
+        eprintln!(
+            "sdslam: loaded map {} ({n} keyframes, {} points)",
+            path.display(),
+            snap.n_points()
+        );
+    }
+    system.set_localize_only(a.localize_only);
     // The caller's thread tracks; the mapping threads were pinned (if configured) as they
     // started.
     if !sdslam::runtime::pin_current_thread(&config.runtime.tracking_cpus) {
@@ -273,6 +299,18 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         if let Some(ate) = sdslam::eval::ate(gt, &keyframes, 0.02, true) {
             report.keyframe_ate_rmse_m = Some(ate.rmse_m);
         }
+    }
+    if let Some(path) = &a.save_map {
+        let bytes = system
+            .save_map()
+            .encode()
+            .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", path.display())))?;
+        io::write_atomic(path, &bytes)?;
+        eprintln!(
+            "sdslam: map saved to {} ({} kB)",
+            path.display(),
+            bytes.len() / 1024
+        );
     }
     let cloud = system.semidense_cloud();
     write_ply(&a.out.join("semidense.ply"), &cloud)?;

@@ -7,6 +7,7 @@
 mod arena;
 mod keyframe;
 mod map_point;
+pub mod persist;
 
 pub use arena::{Arena, ArenaFull, Handle};
 pub use keyframe::KeyFrame;
@@ -119,6 +120,10 @@ impl Map {
     }
     pub fn n_points(&self) -> usize {
         self.points.len()
+    }
+    /// (keyframes, map points) the map can hold.
+    pub fn capacity(&self) -> (usize, usize) {
+        (self.keyframes.capacity(), self.points.capacity())
     }
 
     /// Frees a keyframe slot: erases the least useful keyframe, i.e. the one (neither the root

@@ -16,6 +16,7 @@ use crate::features::OrbExtractor;
 use crate::geometry::{CameraFromWorld, Se3, WorldFromCamera};
 use crate::local_mapping::{median_depth, LocalMapper};
 use crate::loop_closing::{GlobalBaJob, LoopCloser, PlaceIndex};
+use crate::map::persist::{MapFileError, MapOrigin, MapSnapshot};
 use crate::map::{KeyFrameId, Map, MapConfig};
 
 use crate::place_recognition::{default_vocabulary, KeyFrameDatabase, Vocabulary};
@@ -102,6 +103,8 @@ pub struct System {
     vocabulary: Option<Arc<Vocabulary>>,
     places: Arc<Mutex<PlaceIndex>>,
     init: Initializer,
+    /// Track against the map without changing it (no keyframes, no BA, no reset).
+    localize_only: bool,
     frame: TrackedFrame,
     trajectory: Vec<TrajectoryEntry>,
     pub stats: SystemStats,
@@ -190,6 +193,7 @@ impl System {
             semidense,
             fresh_keyframes: heapless::Vec::new(),
             final_ba: config.map.final_global_ba,
+            localize_only: false,
             global_ba_after_loop: config.map.global_ba_after_loop,
             finished: false,
             init: Initializer::new(max_features, w, h),
@@ -253,7 +257,7 @@ impl System {
         }
         // Final full BA (every keyframe and point; the first keyframe fixed) before the last
         // semi-dense keyframes are reconstructed, so they and the cloud use the refined poses.
-        if self.final_ba && !self.finished {
+        if self.final_ba && !self.finished && !self.localize_only {
             let map_arc = Arc::clone(&self.map);
             let mut m = lock(&map_arc);
             if m.n_keyframes() >= 3 {
@@ -265,6 +269,88 @@ impl System {
         self.finished = true;
         ok &= self.semidense.finish(&self.map);
         ok
+    }
+
+    /// What this system's maps are built with (camera and vocabulary), for map files.
+    pub fn map_origin(&self) -> MapOrigin {
+        let c = &self.camera;
+        let (words, crc) = self.vocabulary.as_ref().map_or((0, 0), |v| {
+            (
+                v.n_words() as u32,
+                crc32fast::hash(&crate::place_recognition::encode_vocabulary(v)),
+            )
+        });
+        MapOrigin {
+            intrinsics: [c.fx, c.fy, c.cx, c.cy],
+            width: c.width,
+            height: c.height,
+            vocabulary_words: words,
+            vocabulary_crc: crc,
+        }
+    }
+
+    /// The map as it is now, for saving (see [`MapSnapshot::encode`]).
+    pub fn save_map(&self) -> MapSnapshot {
+        MapSnapshot::capture(&lock(&self.map), self.map_origin())
+    }
+
+    /// Replaces the map with a saved one (before the first frame). The camera and the
+    /// vocabulary must be the ones it was built with. Tracking starts Lost, so the first frames
+    /// relocalise against it. Returns the number of keyframes loaded.
+    pub fn load_map(&mut self, snap: &MapSnapshot) -> Result<usize, MapFileError> {
+        let here = self.map_origin();
+        let there = &snap.origin;
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(1.0);
+        if (there.width, there.height) != (here.width, here.height)
+            || !there
+                .intrinsics
+                .iter()
+                .zip(&here.intrinsics)
+                .all(|(a, b)| close(*a, *b))
+        {
+            return Err(MapFileError::Incompatible {
+                what: "another camera",
+                map: format!("{}x{} {:?}", there.width, there.height, there.intrinsics),
+                run: format!("{}x{} {:?}", here.width, here.height, here.intrinsics),
+            });
+        }
+        if (there.vocabulary_words, there.vocabulary_crc)
+            != (here.vocabulary_words, here.vocabulary_crc)
+        {
+            return Err(MapFileError::Incompatible {
+                what: "another vocabulary",
+                map: format!(
+                    "{} words, crc {:08x}",
+                    there.vocabulary_words, there.vocabulary_crc
+                ),
+                run: format!(
+                    "{} words, crc {:08x}",
+                    here.vocabulary_words, here.vocabulary_crc
+                ),
+            });
+        }
+        let map_arc = Arc::clone(&self.map);
+        let mut map = lock(&map_arc);
+        let ids = snap.restore(&mut map)?;
+        {
+            let n = self.vocabulary.as_ref().map_or(0, |v| v.n_words());
+            let mut places = self.places.lock().unwrap_or_else(|e| e.into_inner());
+            places.database = KeyFrameDatabase::new(n);
+            places.keys.clear();
+        }
+        for &kf in &ids {
+            self.index_keyframe(&map, kf);
+        }
+        self.tracker.state = TrackingState::Lost;
+        self.tracker.reference_kf = None;
+        self.tracker.velocity = None;
+        Ok(ids.len())
+    }
+
+    /// Localisation only: track (and relocalise) against the map without adding keyframes,
+    /// running BA or resetting it.
+    pub fn set_localize_only(&mut self, on: bool) {
+        self.localize_only = on;
     }
 
     /// The worker thread that has died (panicked) during the run, if any: the caller should
@@ -329,12 +415,15 @@ impl System {
                 Mapping::Inline(_) => true,
                 Mapping::Thread { idle, .. } => idle.load(Ordering::Acquire),
             };
-            if st == TrackingState::Ok && self.tracker.need_keyframe(map, &self.frame, idle) {
+            if st == TrackingState::Ok
+                && !self.localize_only
+                && self.tracker.need_keyframe(map, &self.frame, idle)
+            {
                 let tk = Instant::now();
                 new_keyframe = self.insert_keyframe(map, gray, rgb, t0);
                 self.stats.keyframe_insertion.record(tk.elapsed());
             }
-            if st == TrackingState::Lost && map.n_keyframes() <= 5 {
+            if st == TrackingState::Lost && map.n_keyframes() <= 5 && !self.localize_only {
                 // Lost right after initialisation: start over (ORB-SLAM's policy).
                 self.reset(map);
             }
