@@ -55,6 +55,9 @@ pub struct RunArgs {
     /// Start from a saved map (same camera and vocabulary); tracking relocalises against it.
     #[arg(long, value_name = "FILE")]
     load_map: Option<PathBuf>,
+    /// Do not draw trajectory.png, cloud.png and timing.png.
+    #[arg(long)]
+    no_plots: bool,
     /// Track against the loaded map without changing it (no keyframes, no BA).
     #[arg(long, requires = "load_map")]
     localize_only: bool,
@@ -78,6 +81,7 @@ impl RunArgs {
             camera: source::CameraArgs::default(),
             save_map: None,
             load_map: None,
+            no_plots: false,
             localize_only: false,
         }
     }
@@ -349,6 +353,29 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         }
     }
     write_json_atomic(&a.out.join("report.json"), &report)?;
+    if !a.no_plots {
+        let aligned = groundtruth
+            .as_ref()
+            .and_then(|gt| sdslam::eval::ate(gt, &keyframes, 0.02, true).map(|r| (gt, r)));
+        let drawn = [
+            super::plots::trajectory(
+                &a.out.join("trajectory.png"),
+                &keyframes,
+                aligned
+                    .as_ref()
+                    .map(|(gt, r)| (gt.as_slice(), &r.alignment, r.rmse_m)),
+            ),
+            super::plots::cloud(&a.out.join("cloud.png"), &cloud),
+            super::plots::timing(
+                &a.out.join("timing.png"),
+                frame_timer.samples_ms(),
+                deadline_ms,
+            ),
+        ];
+        for e in drawn.into_iter().filter_map(|r| r.err()) {
+            eprintln!("warning: {e}");
+        }
+    }
     if let Some(acc) = &report.semidense_accuracy {
         eprintln!(
             "sdslam: semi-dense {} points ({:.0} per keyframe): median relative depth error {:.2}%, {:.1}% within 2%, {:.2}% off by > 10%",
