@@ -29,6 +29,36 @@ use sdslam::Result;
 pub struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
+    /// More log lines on stderr: -v events (map initialised, lost, relocalised, loop closed),
+    /// -vv debug, -vvv trace.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+    /// No progress bar and only warnings and errors.
+    #[arg(short, long, global = true)]
+    quiet: bool,
+}
+
+static QUIET: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// True with `--quiet`: no progress bar.
+fn quiet() -> bool {
+    QUIET.load(std::sync::atomic::Ordering::Relaxed)
+}
+
+/// Log lines (`tracing`) to stderr at the level `-v` asks for (warnings by default).
+fn init_logging(verbose: u8) {
+    let level = match verbose {
+        0 => tracing::Level::WARN,
+        1 => tracing::Level::INFO,
+        2 => tracing::Level::DEBUG,
+        _ => tracing::Level::TRACE,
+    };
+    let _ = tracing_subscriber::fmt()
+        .with_max_level(level)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .try_init();
 }
 
 #[derive(Subcommand, Debug)]
@@ -59,6 +89,8 @@ enum Command {
 }
 
 pub fn dispatch(cli: Cli) -> Result<()> {
+    init_logging(cli.verbose);
+    QUIET.store(cli.quiet, std::sync::atomic::Ordering::Relaxed);
     match cli.command {
         None => run::run(run::RunArgs::default_synthetic()),
         Some(Command::Run(a)) => run::run(a),

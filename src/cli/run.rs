@@ -191,6 +191,20 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         ..Report::default()
     };
     let mut warned_skip = false;
+    // Progress for replays of known length, on a terminal only (indicatif hides otherwise).
+    let progress = match (info.len, super::quiet()) {
+        (Some(n), false) => {
+            let pb = indicatif::ProgressBar::new(n as u64);
+            pb.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{bar:30} {pos}/{len} frames  {per_sec}  {msg}",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            Some(pb)
+        }
+        _ => None,
+    };
     loop {
         if let Some(t) = system.failed_thread() {
             report.stopped_early = Some(format!(
@@ -259,6 +273,16 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             report.deadline_misses += 1;
         }
         report.frames += 1;
+        if let Some(pb) = &progress {
+            pb.set_position(frame.index + 1);
+            if report.frames % 10 == 0 {
+                let (k, p) = system.map_size();
+                pb.set_message(format!("{:?}, {k} keyframes, {p} points", r.state));
+            }
+        }
+    }
+    if let Some(pb) = progress {
+        pb.finish_and_clear();
     }
     drop(src);
     if let Some(p) = &pacing_stats {

@@ -101,6 +101,7 @@ impl LoopCloser {
         for c in candidates {
             if let Some(r) = self.close(map, kf, c) {
                 self.loops_closed += 1;
+                tracing::info!(matches = r.matches, fused = r.fused_points, "loop closed");
                 self.groups.clear();
                 self.last_loop_serial = map.keyframe(kf).map_or(0, |k| k.serial);
                 return Some(r);

@@ -512,6 +512,7 @@ impl System {
         self.tracker.velocity = None;
         self.init.reset();
         self.stats.resets += 1;
+        tracing::warn!("lost right after initialisation: map reset, initialising again");
     }
 
     /// Makes a keyframe of the current frame and maps it (inline) or queues it (thread).

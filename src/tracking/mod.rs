@@ -336,6 +336,7 @@ impl Tracker {
                 self.state = TrackingState::Ok;
                 self.velocity = None;
                 self.relocalisations += 1;
+                tracing::info!(frame = f.index, inliers = n, "relocalised");
                 return self.state;
             }
         }
@@ -418,6 +419,7 @@ impl Tracker {
         } else {
             if self.state == TrackingState::Ok {
                 self.lost_episodes += 1;
+                tracing::warn!(frame = f.index, "tracking lost");
             }
             self.state = TrackingState::Lost;
             self.velocity = None;

@@ -92,6 +92,11 @@ impl System {
         self.tracker.last_keyframe_frame = self.frame.index;
         self.tracker.velocity = None;
         self.tracker.state = TrackingState::Ok;
+        tracing::info!(
+            frame = self.frame.index,
+            points = map.n_points(),
+            "map initialised"
+        );
         self.stats.keyframes_created += 2;
         let _ = self.fresh_keyframes.push(kf0);
         let _ = self.fresh_keyframes.push(kf1);
