@@ -814,3 +814,64 @@ fn save_map_then_localize_only_and_a_damaged_map_is_refused() {
     ]);
     assert!(!ok && err.contains("--load-map"), "{err}");
 }
+
+/// A run draws its pictures; `eval rpe` and `eval report` summarise it.
+#[test]
+fn run_pictures_rpe_and_html_report() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("run");
+    let o = out.to_str().unwrap();
+    let (ok, _, err) = sdslam(&["run", "synthetic", "--frames", "120", "--out", o]);
+    assert!(ok, "{err}");
+    for (png, w) in [
+        ("trajectory.png", 1200),
+        ("cloud.png", 1000),
+        ("timing.png", 1200),
+    ] {
+        let img = image::open(out.join(png)).unwrap_or_else(|e| panic!("{png}: {e}"));
+        assert_eq!(img.width(), w, "{png}");
+        // Not a blank canvas: the plot drew lines and text.
+        let rgb = img.to_rgb8();
+        let non_white = rgb.pixels().filter(|p| p.0 != [255, 255, 255]).count();
+        assert!(non_white > 2000, "{png}: {non_white} drawn pixels");
+    }
+    let gt = out.join("groundtruth.txt");
+    let (ok, stdout, err) = sdslam(&[
+        "eval",
+        "rpe",
+        gt.to_str().unwrap(),
+        out.join("trajectory.txt").to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let r: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(r["pairs"].as_u64().unwrap() > 50, "{r}");
+    assert!(r["trans_rmse"].as_f64().unwrap() < 0.05, "{r}");
+    let (ok, _, err) = sdslam(&["eval", "report", o]);
+    assert!(ok, "{err}");
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    for needle in [
+        "ATE rmse",
+        "RPE 1 s",
+        "<img src=\"trajectory.png\"",
+        "timing.png",
+        "tracked_frames",
+        "semidense_depth",
+    ] {
+        assert!(html.contains(needle), "report.html lacks {needle}");
+    }
+    let (ok, _, err) = sdslam(&["eval", "report", d.path().to_str().unwrap()]);
+    assert!(!ok && err.contains("report.json"), "{err}");
+    let (ok, _, err) = sdslam(&[
+        "run",
+        "synthetic",
+        "--frames",
+        "3",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        d.path().join("np").to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(!d.path().join("np/trajectory.png").exists());
+}

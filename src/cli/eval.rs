@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::{Args, Subcommand};
 
-use sdslam::eval::{ate, cloud_accuracy};
+use sdslam::eval::{ate, cloud_accuracy, rpe};
 use sdslam::io::{decode_ply, load_calibration, load_tum_depth_frames, read_tum_trajectory};
 use sdslam::{Error, Result};
 
@@ -16,6 +16,34 @@ pub enum EvalCommand {
     /// aligned with the keyframe trajectory's Sim3, each point compared with the best of the
     /// 3x3 ground-truth depths around its projection in the depth map nearest its keyframe.
     Cloud(CloudArgs),
+    /// Relative pose error over a time interval (drift), after scaling a monocular estimate
+    /// by its Sim3 alignment.
+    Rpe(RpeArgs),
+    /// A one-page RUN/report.html: the run's figures (report.json), ATE and RPE when
+    /// RUN/groundtruth.txt exists, and the pictures.
+    Report(ReportArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct RpeArgs {
+    gt: PathBuf,
+    est: PathBuf,
+    /// Interval, seconds.
+    #[arg(long, default_value_t = 1.0)]
+    delta: f64,
+    #[arg(long, default_value_t = 0.02)]
+    max_dt: f64,
+    /// Do not rescale the estimate (metric estimates).
+    #[arg(long)]
+    no_scale: bool,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct ReportArgs {
+    /// Output folder of `sdslam run`.
+    run: PathBuf,
 }
 
 #[derive(Args, Debug)]
@@ -86,6 +114,44 @@ pub fn eval(cmd: EvalCommand) -> Result<()> {
             Ok(())
         }
         EvalCommand::Cloud(a) => cloud(a),
+        EvalCommand::Rpe(a) => {
+            if !(a.delta.is_finite() && a.delta > 0.0) {
+                return Err(Error::Invalid(format!(
+                    "--delta {}: must be a positive number of seconds",
+                    a.delta
+                )));
+            }
+            let gt = read_tum_trajectory(&a.gt)?;
+            let est = read_tum_trajectory(&a.est)?;
+            let r = rpe(&gt, &est, a.max_dt, a.delta, !a.no_scale).ok_or_else(|| {
+                Error::Invalid(format!(
+                    "no pose pair {} s apart in {} matches {} within {} s",
+                    a.delta,
+                    a.est.display(),
+                    a.gt.display(),
+                    a.max_dt
+                ))
+            })?;
+            if a.json {
+                println!(
+                    "{}",
+                    serde_json::to_string(&r).map_err(|e| Error::Invalid(e.to_string()))?
+                );
+            } else {
+                println!("pairs      {} ({} s apart)", r.pairs, r.delta_s);
+                println!(
+                    "RPE trans  rmse {:.6} m, mean {:.6} m, max {:.6} m",
+                    r.trans_rmse, r.trans_mean, r.trans_max
+                );
+                println!(
+                    "RPE rot    rmse {:.4} deg, mean {:.4} deg",
+                    r.rot_rmse_deg, r.rot_mean_deg
+                );
+                println!("scale      {:.6}", r.scale);
+            }
+            Ok(())
+        }
+        EvalCommand::Report(a) => super::html::write_report(&a.run),
     }
 }
 

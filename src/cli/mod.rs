@@ -6,6 +6,7 @@ mod cameras;
 mod densify;
 mod eval;
 mod features;
+mod html;
 mod plots;
 mod record;
 mod run;

@@ -275,7 +275,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         report.frames += 1;
         if let Some(pb) = &progress {
             pb.set_position(frame.index + 1);
-            if report.frames % 10 == 0 {
+            if report.frames.is_multiple_of(10) {
                 let (k, p) = system.map_size();
                 pb.set_message(format!("{:?}, {k} keyframes, {p} points", r.state));
             }

@@ -3,7 +3,9 @@
 
 mod ate;
 mod cloud;
+mod rpe;
 
 pub use crate::geometry::umeyama;
 pub use ate::{associate, ate, AteResult, TimedPose};
 pub use cloud::{cloud_accuracy, CloudAccuracy, DepthFrame};
+pub use rpe::{rpe, RpeResult};
