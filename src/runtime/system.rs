@@ -111,7 +111,7 @@ pub struct System {
 }
 
 impl System {
-    /// Builds every buffer for images of the calibration's size. Frames passed to [`process`]
+    /// Builds every buffer for images of the calibration's size. Frames passed to [`process`](Self::process)
     /// must be undistorted (rectified) images of that size.
     /// `threaded`: local mapping on its own thread (real-time use); otherwise inline and
     /// deterministic.

@@ -8,7 +8,7 @@
 pub struct PixelGradient {
     pub intensity: f32,
     pub modulus: f32,
-    /// Orientation in steps of 1/128 turn (see [`ORIENTATION_STEPS`]).
+    /// Orientation in steps of 1/128 turn (see `ORIENTATION_STEPS`).
     pub orientation: u8,
 }
 

@@ -33,7 +33,7 @@ pub struct KeyframeDepth {
     /// anchors of its depth scale. A Sim3 loop correction or global BA rescales the map around
     /// a keyframe; the ratio of then/now inverse depths of these points carries the depths along.
     anchors: heapless::Vec<(MapPointId, f32), MAX_ANCHORS>,
-    /// Depth scale when the pose was last read (see [`anchor_scale`]).
+    /// Depth scale when the pose was last read (the median then/now inverse-depth ratio of its anchor points).
     pub scale: f32,
     /// The inter-keyframe check has run.
     pub checked: bool,
