@@ -11,6 +11,8 @@ mod plots;
 mod record;
 mod run;
 mod signal;
+#[cfg(feature = "rerun")]
+mod viewer;
 mod source;
 mod synth;
 mod vocab;

@@ -55,6 +55,12 @@ pub struct RunArgs {
     /// Start from a saved map (same camera and vocabulary); tracking relocalises against it.
     #[arg(long, value_name = "FILE")]
     load_map: Option<PathBuf>,
+    /// Show the run live in Rerun (a build with `--features rerun`).
+    #[arg(long)]
+    rerun: bool,
+    /// Record the run for Rerun to FILE.rrd (a build with `--features rerun`).
+    #[arg(long, value_name = "FILE")]
+    rerun_save: Option<PathBuf>,
     /// Do not draw trajectory.png, cloud.png and timing.png.
     #[arg(long)]
     no_plots: bool,
@@ -82,6 +88,8 @@ impl RunArgs {
             save_map: None,
             load_map: None,
             no_plots: false,
+            rerun: false,
+            rerun_save: None,
             localize_only: false,
         }
     }
@@ -190,6 +198,18 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         deadline_ms,
         ..Report::default()
     };
+    #[cfg(feature = "rerun")]
+    let viewer = if a.rerun || a.rerun_save.is_some() {
+        Some(super::viewer::Viewer::open(a.rerun_save.as_deref())?)
+    } else {
+        None
+    };
+    #[cfg(not(feature = "rerun"))]
+    if a.rerun || a.rerun_save.is_some() {
+        return Err(sdslam::Error::Invalid(
+            "--rerun needs a build with the viewer: cargo build --release --features rerun".into(),
+        ));
+    }
     let mut warned_skip = false;
     // Progress for replays of known length, on a terminal only (indicatif hides otherwise).
     let progress = match (info.len, super::quiet()) {
@@ -273,6 +293,15 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             report.deadline_misses += 1;
         }
         report.frames += 1;
+        #[cfg(feature = "rerun")]
+        if let Some(v) = &viewer {
+            if let Some(t_wc) = &r.t_wc {
+                v.frame(input.timestamp, t_wc);
+            }
+            if r.new_keyframe {
+                v.keyframes(input.timestamp, &system.keyframe_trajectory());
+            }
+        }
         if let Some(pb) = &progress {
             pb.set_position(frame.index + 1);
             if report.frames.is_multiple_of(10) {
@@ -341,6 +370,12 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         );
     }
     let cloud = system.semidense_cloud();
+    #[cfg(feature = "rerun")]
+    if let Some(v) = &viewer {
+        let t = keyframes.last().map_or(0.0, |k| k.timestamp);
+        v.keyframes(t, &keyframes);
+        v.cloud(t, &cloud);
+    }
     write_ply(&a.out.join("semidense.ply"), &cloud)?;
     report.semidense_points = cloud.len();
     if let Some(sd) = system.semidense() {
