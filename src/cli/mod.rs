@@ -11,10 +11,10 @@ mod plots;
 mod record;
 mod run;
 mod signal;
-#[cfg(feature = "rerun")]
-mod viewer;
 mod source;
 mod synth;
+#[cfg(feature = "rerun")]
+mod viewer;
 mod vocab;
 
 use std::path::PathBuf;

@@ -300,6 +300,11 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             }
             if r.new_keyframe {
                 v.keyframes(input.timestamp, &system.keyframe_trajectory());
+                // The cloud so far is readable while running in the single-thread mode only
+                // (the semi-dense thread hands its results over at the end).
+                if system.semidense().is_some() && system.map_size().0 % 5 == 0 {
+                    v.cloud(input.timestamp, &system.semidense_cloud());
+                }
             }
         }
         if let Some(pb) = &progress {

@@ -54,8 +54,13 @@ impl Viewer {
                 [c.x as f32, c.y as f32, c.z as f32]
             })
             .collect();
-        let _ = self.rec.log("world/keyframes", &rerun::Points3D::new(pts.clone()).with_radii([0.01f32]));
-        let _ = self.rec.log("world/trajectory", &rerun::LineStrips3D::new([pts]));
+        let _ = self.rec.log(
+            "world/keyframes",
+            &rerun::Points3D::new(pts.clone()).with_radii([0.01f32]),
+        );
+        let _ = self
+            .rec
+            .log("world/trajectory", &rerun::LineStrips3D::new([pts]));
     }
 
     /// The semi-dense cloud in its colours.
@@ -64,7 +69,11 @@ impl Viewer {
         let _ = self.rec.log(
             "world/semidense",
             &rerun::Points3D::new(cloud.iter().map(|p| p.position))
-                .with_colors(cloud.iter().map(|p| rerun::Color::from_rgb(p.rgb[0], p.rgb[1], p.rgb[2])))
+                .with_colors(
+                    cloud
+                        .iter()
+                        .map(|p| rerun::Color::from_rgb(p.rgb[0], p.rgb[1], p.rgb[2])),
+                )
                 .with_radii([0.003f32]),
         );
     }
