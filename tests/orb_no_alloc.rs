@@ -71,3 +71,29 @@ fn motion_only_ba_allocates_nothing() {
     });
     assert_eq!(n, 0, "{n} heap allocations in 3 motion-only BA calls");
 }
+
+/// Camera conversion: GREY and YUYV buffers into the preallocated frame allocate nothing (the
+/// MJPEG path's JPEG decoder allocates inside; see docs/DECISIONS.md).
+#[test]
+fn camera_conversion_allocates_nothing() {
+    use sdslam::camera::device::convert::{encode, Converter};
+    use sdslam::camera::device::PixelFormat;
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
+    let mut f = Frame::new(640, 480);
+    seq.render_frame(0, &mut f);
+    let mut yuyv = Vec::new();
+    encode::yuyv_from_rgb(&f.rgb, 640, 480, 1280 + 64, &mut yuyv);
+    let grey: Vec<u8> = f.gray.clone();
+    let mut out = Frame::new(640, 480);
+    let mut conv_y = Converter::new("cam", PixelFormat::Yuyv, 640, 480, 1280 + 64, true);
+    let mut conv_g = Converter::new("cam", PixelFormat::Grey, 640, 480, 640, false);
+    conv_y.convert(&yuyv, &mut out).unwrap();
+    conv_g.convert(&grey, &mut out).unwrap();
+    let (_, n) = allocations_in(|| {
+        for _ in 0..5 {
+            conv_y.convert(&yuyv, &mut out).unwrap();
+            conv_g.convert(&grey, &mut out).unwrap();
+        }
+    });
+    assert_eq!(n, 0, "{n} allocations converting 10 camera buffers");
+}
