@@ -302,7 +302,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
                 v.keyframes(input.timestamp, &system.keyframe_trajectory());
                 // The cloud so far is readable while running in the single-thread mode only
                 // (the semi-dense thread hands its results over at the end).
-                if system.semidense().is_some() && system.map_size().0 % 5 == 0 {
+                if system.semidense().is_some() && system.map_size().0.is_multiple_of(5) {
                     v.cloud(input.timestamp, &system.semidense_cloud());
                 }
             }
