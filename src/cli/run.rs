@@ -235,6 +235,10 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             );
             break;
         }
+        // `--frames N` also bounds live cameras (replays are cut at the source).
+        if a.frames.is_some_and(|n| report.frames >= n) {
+            break;
+        }
         if super::signal::interrupted() {
             report.stopped_early =
                 Some("interrupted (Ctrl-C); outputs written from the run so far".into());
