@@ -2,7 +2,7 @@
 //! nightly, which this project's machines do not have): property tests that mutate real files
 //! (bit flips, byte edits, deletions, insertions of tokens parsers find hard, truncation) and
 //! require a clean `Ok` or `Err` (never a panic), plus sanity of what is accepted. The number
-//! of cases per target is `SDSLAM_FUZZ_CASES` (default 5000); docs/RELIABILITY.md records runs.
+//! of cases per target is `SDSLAM_FUZZ_CASES` (default 20,000); docs/RELIABILITY.md records runs.
 
 mod common;
 
@@ -72,7 +72,7 @@ fn cases() -> u32 {
     std::env::var("SDSLAM_FUZZ_CASES")
         .ok()
         .and_then(|v| v.parse().ok())
-        .unwrap_or(5000)
+        .unwrap_or(20_000)
 }
 
 /// Runs `check` on mutations of each seed; returns the number of executions.
