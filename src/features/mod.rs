@@ -14,7 +14,7 @@ pub use brief::Descriptor;
 pub use extractor::{features_per_level, OrbExtractor};
 
 /// A keypoint in level-0 pixel coordinates.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct KeyPoint {
     /// Distorted (raw image) position.
     pub x: f32,

@@ -33,25 +33,13 @@ pub struct MapOrigin {
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
-struct KeyPointRec {
-    x: f32,
-    y: f32,
-    ux: f32,
-    uy: f32,
-    octave: u8,
-    angle: f32,
-    response: f32,
-    size: f32,
-}
-
-#[derive(Clone, Debug, Serialize, Deserialize)]
 struct KeyFrameRec {
     frame_index: u64,
     timestamp: f64,
     /// T_cw as unit quaternion (w, x, y, z) and translation.
     rotation: [f64; 4],
     translation: [f64; 3],
-    keypoints: Vec<KeyPointRec>,
+    keypoints: Vec<KeyPoint>,
     descriptors: Vec<[u64; 4]>,
     parent: Option<u32>,
     loop_edges: Vec<u32>,
@@ -132,20 +120,7 @@ impl MapSnapshot {
                     timestamp: k.timestamp,
                     rotation: [q.w, q.i, q.j, q.k],
                     translation: [t.x, t.y, t.z],
-                    keypoints: k
-                        .keypoints
-                        .iter()
-                        .map(|p| KeyPointRec {
-                            x: p.x,
-                            y: p.y,
-                            ux: p.ux,
-                            uy: p.uy,
-                            octave: p.octave,
-                            angle: p.angle,
-                            response: p.response,
-                            size: p.size,
-                        })
-                        .collect(),
+                    keypoints: k.keypoints.clone(),
                     descriptors: k.descriptors.clone(),
                     parent: k.parent.and_then(|p| kf_index.get(&p).copied()),
                     loop_edges: k
@@ -301,16 +276,7 @@ impl MapSnapshot {
                     kf.frame_index = k.frame_index;
                     kf.timestamp = k.timestamp;
                     kf.t_cw = CameraFromWorld(Isometry3::from_parts(t, q));
-                    kf.keypoints.extend(k.keypoints.iter().map(|p| KeyPoint {
-                        x: p.x,
-                        y: p.y,
-                        ux: p.ux,
-                        uy: p.uy,
-                        octave: p.octave,
-                        angle: p.angle,
-                        response: p.response,
-                        size: p.size,
-                    }));
+                    kf.keypoints.extend_from_slice(&k.keypoints);
                     kf.descriptors.extend_from_slice(&k.descriptors);
                 })
                 .map_err(|e| MapFileError::Inconsistent(format!("{e:?}")))?;
