@@ -70,6 +70,13 @@ pub struct SemiDenseConfig {
     /// (from its prior). Not in the paper, which relies on keyframes being wide-baseline:
     /// near-duplicate keyframes give wide hypotheses compatible with wrong ones.
     pub min_baseline_ratio: f64,
+    /// Once two neighbours give compatible hypotheses (eq. 10), search the remaining ones only
+    /// where a hypothesis could still be compatible with them (rho +- 2.45 sigma of each, 2.45
+    /// = sqrt(chi2 95%, 2 dof)) instead of the whole prior interval. Not in the paper, off by
+    /// default: a remaining neighbour whose best match lies elsewhere contributes its best
+    /// match inside the window instead of an outlier, which on `desk` gave ~10% more points
+    /// but 0.9-1.2% outliers (0.65-0.9% without) for only ~5% less depth-stage time.
+    pub consensus_window: bool,
     /// Nice value added to the semi-dense threads (Linux), so tracking always wins a core.
     pub nice: i32,
     /// CPUs for the semi-dense thread and its workers; empty = no pinning.
@@ -93,6 +100,7 @@ impl Default for SemiDenseConfig {
             keyframe_delay: 10,
             threads: 2,
             max_similarity_error: 5.99,
+            consensus_window: false,
             nice: 10,
             cpus: Vec::new(),
             min_baseline_ratio: 0.05,

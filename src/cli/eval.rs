@@ -191,7 +191,10 @@ fn cloud(a: CloudArgs) -> Result<()> {
             (p.sigma as f64) * d < max
         });
     }
-    let frames = load_tum_depth_frames(&a.gt, &gt, cam.width, cam.height, 5000.0)?;
+    let mut stamps: Vec<f64> = points.iter().map(|p| p.timestamp).collect();
+    stamps.sort_by(f64::total_cmp);
+    stamps.dedup();
+    let frames = load_tum_depth_frames(&a.gt, &gt, cam.width, cam.height, 5000.0, Some(&stamps))?;
     let r = cloud_accuracy(&points, &align.alignment, cam, &frames);
     if a.per_keyframe {
         let mut start = 0;

@@ -110,9 +110,14 @@ impl DepthTruth {
     ) -> Result<Vec<sdslam::eval::DepthFrame>> {
         match self {
             DepthTruth::None => Ok(Vec::new()),
-            DepthTruth::TumFolder(dir) => {
-                sdslam::io::load_tum_depth_frames(dir, groundtruth, width, height, 5000.0)
-            }
+            DepthTruth::TumFolder(dir) => sdslam::io::load_tum_depth_frames(
+                dir,
+                groundtruth,
+                width,
+                height,
+                5000.0,
+                Some(timestamps),
+            ),
             DepthTruth::Synthetic(cfg) => {
                 let seq = SyntheticSequence::new(cfg.clone());
                 let gt = seq.ground_truth();

@@ -46,32 +46,66 @@ pub fn pattern() -> &'static [[i8; 4]; 256] {
     })
 }
 
+/// The pattern as separate coordinate arrays (first points, then second points), so rotating
+/// all 512 points runs as wide integer arithmetic.
+pub struct PatternPoints {
+    xs: [i32; 512],
+    ys: [i32; 512],
+}
+
+impl PatternPoints {
+    pub fn new() -> Self {
+        let mut xs = [0i32; 512];
+        let mut ys = [0i32; 512];
+        for (i, q) in pattern().iter().enumerate() {
+            (xs[i], ys[i]) = (q[0] as i32, q[1] as i32);
+            (xs[256 + i], ys[256 + i]) = (q[2] as i32, q[3] as i32);
+        }
+        PatternPoints { xs, ys }
+    }
+}
+
+impl Default for PatternPoints {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// Computes the steered descriptor of the keypoint at level coordinates (x, y) with `angle` in
 /// degrees, sampling `blurred`. The pattern is rotated in 12-bit fixed point (rounding half up),
 /// all 512 offsets first, then the 256 comparisons.
-#[inline]
-pub fn describe(blurred: &PaddedImage, x: isize, y: isize, angle_deg: f32) -> Descriptor {
+#[inline(always)]
+pub fn describe(
+    blurred: &PaddedImage,
+    points: &PatternPoints,
+    x: isize,
+    y: isize,
+    angle_deg: f32,
+) -> Descriptor {
     let (s, c) = angle_deg.to_radians().sin_cos();
     let (s, c) = ((s * 4096.0).round() as i32, (c * 4096.0).round() as i32);
     let st = blurred.stride as i32;
+    // Offsets from the top-left of a 45 x 45 window centred on the keypoint: every rotated
+    // point lies within 22 pixels of the centre, inside the padded image.
+    let base = 22 * st + 22;
     let mut offs = [0i32; 512];
-    for (o, q) in offs.chunks_exact_mut(2).zip(pattern().iter()) {
-        for (k, off) in o.iter_mut().enumerate() {
-            let (px, py) = (q[2 * k] as i32, q[2 * k + 1] as i32);
-            let rx = (px * c - py * s + 2048) >> 12;
-            let ry = (px * s + py * c + 2048) >> 12;
-            *off = ry * st + rx;
-        }
+    for ((o, &px), &py) in offs.iter_mut().zip(&points.xs).zip(&points.ys) {
+        let rx = (px * c - py * s + 2048) >> 12;
+        let ry = (px * s + py * c + 2048) >> 12;
+        *o = base + ry * st + rx;
     }
     let centre = blurred.idx(x, y);
-    // Every rotated offset lies within 22 pixels of the centre, inside the padded image.
     let win = &blurred.data[centre - 22 * blurred.stride - 22..centre + 22 * blurred.stride + 23];
-    let base = (22 * st + 22) as isize;
+    let (first, second) = offs.split_at(256);
     let mut desc = [0u64; 4];
-    for (i, pair) in offs.chunks_exact(2).enumerate() {
-        let a = win[(base + pair[0] as isize) as usize];
-        let b = win[(base + pair[1] as isize) as usize];
-        desc[i >> 6] |= ((a < b) as u64) << (i & 63);
+    for (w, word) in desc.iter_mut().enumerate() {
+        let mut bits = 0u64;
+        for b in 0..64 {
+            let i = w * 64 + b;
+            let (a, bb) = (win[first[i] as usize], win[second[i] as usize]);
+            bits |= ((a < bb) as u64) << b;
+        }
+        *word = bits;
     }
     desc
 }
@@ -106,13 +140,17 @@ mod tests {
         }
         let mut img = PaddedImage::new(w, h, 24);
         img.copy_from(&data);
+        let pts = PatternPoints::new();
         for a in [0.0f32, 33.0, 90.0, 271.5] {
             assert_eq!(
-                describe(&img, 30, 35, a),
-                describe(&img, 80, 35, a),
+                describe(&img, &pts, 30, 35, a),
+                describe(&img, &pts, 80, 35, a),
                 "angle {a}"
             );
         }
-        assert_ne!(describe(&img, 30, 35, 0.0), describe(&img, 31, 35, 0.0));
+        assert_ne!(
+            describe(&img, &pts, 30, 35, 0.0),
+            describe(&img, &pts, 31, 35, 0.0)
+        );
     }
 }

@@ -115,9 +115,15 @@ pub struct Corner {
 /// Region of a level: `(x0, y0, x1, y1)`, end-exclusive.
 pub type Region = (usize, usize, usize, usize);
 
-/// Detects every FAST-9 corner with score >= `threshold` inside `region` of `img`, appending to
-/// `out` with their exact scores, and writes scores into `score_map` (level-sized, zeroed by
-/// the caller) for non-maximum suppression. Uses AVX2 when the CPU has it.
+/// Detects the FAST-9 corners with score >= `threshold` inside `region` of `img` that are strict
+/// local maxima of the score over their 8 neighbours (as OpenCV's FAST with suppression), and
+/// appends them to `out` with their exact scores.
+///
+/// `score_map` is level-sized and zeroed by the caller once per level; it keeps `score + 1` of
+/// every corner (0 = none) of this and earlier calls, over the region and a one-pixel frame
+/// around it, so regions detected later (ORB's low-threshold cells) are suppressed against their
+/// neighbours too. Suppression runs one row behind detection, so only surviving corners are
+/// ever emitted. The region must stay 4 pixels inside the level. Uses AVX2 when the CPU has it.
 pub fn detect(
     img: &PaddedImage,
     threshold: u8,
@@ -129,6 +135,15 @@ pub fn detect(
         img.pad >= 3 + LANES,
         "FAST needs a border of 3 + LANES pixels for its wide loads"
     );
+    let (x0, y0, x1, y1) = region;
+    if x0 >= x1 || y0 >= y1 {
+        return;
+    }
+    assert!(
+        x0 >= 4 && y0 >= 4 && x1 + 4 <= img.width && y1 + 4 <= img.height,
+        "FAST region must stay 4 pixels inside the level"
+    );
+    assert!(score_map.len() >= img.width * img.height);
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked just above); the function is otherwise safe.
@@ -150,6 +165,99 @@ fn detect_avx2(
     detect_lanes(img, threshold, region, out, score_map)
 }
 
+/// Bit i set when lane i is non-zero.
+#[inline(always)]
+fn nonzero_mask(v: &Lanes) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{
+            __m128i, _mm_cmpeq_epi8, _mm_loadu_si128, _mm_movemask_epi8, _mm_setzero_si128,
+        };
+        // SAFETY: SSE2 is part of the x86_64 baseline; both loads read inside the 32-byte array.
+        unsafe {
+            let z = _mm_setzero_si128();
+            let a = _mm_loadu_si128(v.as_ptr() as *const __m128i);
+            let b = _mm_loadu_si128(v.as_ptr().add(16) as *const __m128i);
+            let za = _mm_movemask_epi8(_mm_cmpeq_epi8(a, z)) as u32;
+            let zb = _mm_movemask_epi8(_mm_cmpeq_epi8(b, z)) as u32;
+            !(za | (zb << 16))
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let mut m = 0u32;
+        for (i, &x) in v.iter().enumerate() {
+            m |= ((x != 0) as u32) << i;
+        }
+        m
+    }
+}
+
+/// Lanes kept by the first `n` of `LANES` (n <= LANES).
+#[inline(always)]
+fn first_lanes(n: usize) -> u32 {
+    if n >= 32 {
+        u32::MAX
+    } else {
+        (1u32 << n) - 1
+    }
+}
+
+#[inline(always)]
+fn sub_sat(a: &Lanes, b: &Lanes) -> Lanes {
+    let mut o = [0u8; LANES];
+    for i in 0..LANES {
+        o[i] = a[i].saturating_sub(b[i]);
+    }
+    o
+}
+
+/// Largest per-lane value of "two adjacent compass points both beyond the centre".
+#[inline(always)]
+fn compass_pairs(m: &[Lanes; 4]) -> Lanes {
+    max(
+        &max(&min(&m[0], &m[1]), &min(&m[1], &m[2])),
+        &max(&min(&m[2], &m[3]), &min(&m[3], &m[0])),
+    )
+}
+
+/// `score + 1` per lane for the 32 pixels starting at `at`, 0 where not a corner above `t`.
+#[inline(always)]
+fn chunk_scores(data: &[u8], at: usize, offs: &[isize; 16], t: u8) -> Lanes {
+    let c = load(data, at);
+    // Compass test: an arc of 9 always covers two adjacent compass points, each beyond the
+    // threshold in the same direction. Rejects most chunks of flat image.
+    let mut compass = [[0u8; LANES]; 4];
+    for (k, r) in compass.iter_mut().enumerate() {
+        *r = load(data, (at as isize + offs[4 * k]) as usize);
+    }
+    let mut bright = [[0u8; LANES]; 4];
+    let mut dark = [[0u8; LANES]; 4];
+    for k in 0..4 {
+        bright[k] = sub_sat(&compass[k], &c);
+        dark[k] = sub_sat(&c, &compass[k]);
+    }
+    let cand = max(&compass_pairs(&bright), &compass_pairs(&dark));
+    let mut tl = [0u8; LANES];
+    tl.fill(t);
+    if nonzero_mask(&sub_sat(&cand, &tl)) == 0 {
+        return [0; LANES];
+    }
+    let mut bright = [[0u8; LANES]; 16];
+    let mut dark = [[0u8; LANES]; 16];
+    for k in 0..16 {
+        let r = load(data, (at as isize + offs[k]) as usize);
+        bright[k] = sub_sat(&r, &c);
+        dark[k] = sub_sat(&c, &r);
+    }
+    let s = max(&best_arc_min(&bright), &best_arc_min(&dark));
+    let mut o = [0u8; LANES];
+    for i in 0..LANES {
+        o[i] = if s[i] > t { s[i] } else { 0 };
+    }
+    o
+}
+
 #[inline(always)]
 fn detect_lanes(
     img: &PaddedImage,
@@ -159,87 +267,66 @@ fn detect_lanes(
     score_map: &mut [u8],
 ) {
     let offs: [isize; 16] = CIRCLE.map(|(dx, dy)| dy * img.stride as isize + dx);
-    let t = threshold;
-    for y in y0..y1 {
+    let w = img.width;
+    // Scores over the region and a one-pixel frame (the suppression neighbourhood).
+    let (sx0, sx1) = (x0 - 1, x1 + 1);
+    for y in y0 - 1..=y1 {
         let row = img.idx(0, y as isize);
-        let mut x = x0;
-        while x < x1 {
-            let at = row + x;
-            let c = load(&img.data, at);
-            let ring = |k: usize| load(&img.data, (at as isize + offs[k]) as usize);
-            // Compass test: an arc of 9 always covers two adjacent compass points, each beyond
-            // the threshold in the same direction. Rejects most chunks of flat image.
-            let mut bright = [[0u8; LANES]; 16];
-            let mut dark = [[0u8; LANES]; 16];
-            for k in [0usize, 4, 8, 12] {
-                let r = ring(k);
-                for i in 0..LANES {
-                    bright[k][i] = r[i].saturating_sub(c[i]);
-                    dark[k][i] = c[i].saturating_sub(r[i]);
-                }
-            }
-            let pair = |m: &[Lanes; 16]| {
-                max(
-                    &max(&min(&m[0], &m[4]), &min(&m[4], &m[8])),
-                    &max(&min(&m[8], &m[12]), &min(&m[12], &m[0])),
-                )
-            };
-            let cand = max(&pair(&bright), &pair(&dark));
-            if cand.iter().any(|&v| v > t) {
-                for k in 0..16 {
-                    if k % 4 == 0 {
-                        continue;
-                    }
-                    let r = ring(k);
-                    for i in 0..LANES {
-                        bright[k][i] = r[i].saturating_sub(c[i]);
-                        dark[k][i] = c[i].saturating_sub(r[i]);
-                    }
-                }
-                let score = max(&best_arc_min(&bright), &best_arc_min(&dark));
-                let lim = (x1 - x).min(LANES);
-                for (i, &s) in score.iter().enumerate().take(lim) {
-                    if s > t {
-                        let (cx, cy) = (x + i, y);
-                        let s = s - 1;
-                        score_map[cy * img.width + cx] = s;
-                        out.push(Corner {
-                            x: cx as u16,
-                            y: cy as u16,
-                            score: s,
-                        });
-                    }
-                }
+        let mut x = sx0;
+        while x < sx1 {
+            let s = chunk_scores(&img.data, row + x, &offs, threshold);
+            let n = (sx1 - x).min(LANES);
+            let dst = &mut score_map[y * w + x..y * w + x + n];
+            // Never lower a score an earlier (higher-threshold) call wrote.
+            for (d, &v) in dst.iter_mut().zip(&s[..n]) {
+                *d = (*d).max(v);
             }
             x += LANES;
+        }
+        if y > y0 {
+            suppress_row(score_map, w, y - 1, x0, x1, out);
         }
     }
 }
 
-/// Keeps corners whose score beats all 8 neighbours strictly (as OpenCV's FAST), in place.
-pub fn non_max_suppression(
-    corners: &mut Vec<Corner>,
-    score_map: &[u8],
-    width: usize,
-    height: usize,
-) {
-    corners.retain(|c| {
-        let (x, y, s) = (c.x as usize, c.y as usize, c.score);
-        if x == 0 || y == 0 || x + 1 >= width || y + 1 >= height {
-            return false;
+/// Emits the corners of row `y` in `[x0, x1)` whose score beats all 8 neighbours strictly.
+#[inline(always)]
+fn suppress_row(map: &[u8], w: usize, y: usize, x0: usize, x1: usize, out: &mut Vec<Corner>) {
+    let mut x = x0;
+    while x < x1 {
+        let at = y * w + x;
+        let s = load(map, at);
+        let mut keep = nonzero_mask(&s) & first_lanes(x1 - x);
+        if keep != 0 {
+            let mut margin = [u8::MAX; LANES];
+            for off in [
+                at - w - 1,
+                at - w,
+                at - w + 1,
+                at - 1,
+                at + 1,
+                at + w - 1,
+                at + w,
+                at + w + 1,
+            ] {
+                let n = load(map, off);
+                for i in 0..LANES {
+                    margin[i] = margin[i].min(s[i].saturating_sub(n[i]));
+                }
+            }
+            keep &= nonzero_mask(&margin);
+            while keep != 0 {
+                let i = keep.trailing_zeros() as usize;
+                keep &= keep - 1;
+                out.push(Corner {
+                    x: (x + i) as u16,
+                    y: y as u16,
+                    score: s[i] - 1,
+                });
+            }
         }
-        let r0 = (y - 1) * width + x;
-        let r1 = y * width + x;
-        let r2 = (y + 1) * width + x;
-        s > score_map[r0 - 1]
-            && s > score_map[r0]
-            && s > score_map[r0 + 1]
-            && s > score_map[r1 - 1]
-            && s > score_map[r1 + 1]
-            && s > score_map[r2 - 1]
-            && s > score_map[r2]
-            && s > score_map[r2 + 1]
-    });
+        x += LANES;
+    }
 }
 
 #[cfg(test)]
@@ -273,46 +360,89 @@ mod tests {
         img
     }
 
+    /// Scalar reference: corners at `t` in the region that beat their 8 neighbours' scores.
+    fn reference(img: &PaddedImage, t: u8, (x0, y0, x1, y1): Region) -> Vec<Corner> {
+        let score = |x: isize, y: isize| -> i16 {
+            if is_corner(img, x, y, t) {
+                corner_score(img, x, y) as i16
+            } else {
+                -1
+            }
+        };
+        let mut out = Vec::new();
+        for y in y0 as isize..y1 as isize {
+            for x in x0 as isize..x1 as isize {
+                let s = score(x, y);
+                let beats = (-1..=1)
+                    .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
+                    .filter(|&d| d != (0, 0))
+                    .all(|(dx, dy)| s > score(x + dx, y + dy));
+                if s >= 0 && beats {
+                    out.push(Corner {
+                        x: x as u16,
+                        y: y as u16,
+                        score: s as u8,
+                    });
+                }
+            }
+        }
+        out
+    }
+
     #[test]
-    fn lane_detector_matches_scalar_segment_test_and_scores_are_exact() {
+    fn lane_detector_matches_scalar_segment_test_suppression_and_exact_scores() {
         let img = noise_image(90, 40, 3);
         for t in [7u8, 20, 40] {
             let mut out = Vec::new();
             let mut map = vec![0u8; 90 * 40];
-            detect(&img, t, (3, 3, 87, 37), &mut out, &mut map);
-            let mut expect = 0;
-            for y in 3..37 {
-                for x in 3..87 {
-                    let c = is_corner(&img, x, y, t);
-                    expect += c as usize;
-                    let found = out.iter().any(|k| k.x as isize == x && k.y as isize == y);
-                    assert_eq!(c, found, "t {t} at ({x},{y})");
-                }
-            }
-            assert_eq!(out.len(), expect);
+            detect(&img, t, (4, 4, 86, 36), &mut out, &mut map);
+            let expect = reference(&img, t, (4, 4, 86, 36));
+            assert!(!expect.is_empty());
+            assert_eq!(out, expect, "t {t}");
             for k in &out {
-                let s = corner_score(&img, k.x as isize, k.y as isize);
+                let s = k.score;
                 assert!(is_corner(&img, k.x as isize, k.y as isize, s));
                 assert!(
                     !is_corner(&img, k.x as isize, k.y as isize, s.saturating_add(1)) || s == 255
                 );
             }
         }
+        // The portable lanes give the same corners as the AVX2 build.
+        let mut out = Vec::new();
+        let mut map = vec![0u8; 90 * 40];
+        detect_lanes(&img, 20, (4, 4, 86, 36), &mut out, &mut map);
+        assert_eq!(out, reference(&img, 20, (4, 4, 86, 36)));
     }
 
     #[test]
+    fn later_low_threshold_regions_are_suppressed_against_earlier_corners() {
+        let img = noise_image(90, 40, 5);
+        let mut map = vec![0u8; 90 * 40];
+        let mut high = Vec::new();
+        detect(&img, 30, (4, 4, 86, 36), &mut high, &mut map);
+        let mut low = Vec::new();
+        detect(&img, 7, (40, 10, 60, 30), &mut low, &mut map);
+        // Every low corner beats its neighbours at the low threshold, and no high corner
+        // next to it outscores it.
+        let full = reference(&img, 7, (40, 10, 60, 30));
+        assert!(low.iter().all(|c| full.contains(c)), "{low:?}");
+        assert_eq!(low.len(), full.len());
+    }
+    #[test]
     fn a_bright_square_corner_is_found() {
+        // A bright square whose brightness falls away from its corner, so the corner pixel has
+        // a unique best score (strict suppression removes tied plateaus, as OpenCV's does).
         let mut data = vec![20u8; 64 * 64];
         for y in 32..64 {
             for x in 32..64 {
-                data[y * 64 + x] = 200;
+                data[y * 64 + x] = (200 - (x - 32) - (y - 32)) as u8;
             }
         }
         let mut img = PaddedImage::new(64, 64, 40);
         img.copy_from(&data);
         let mut out = Vec::new();
         let mut map = vec![0u8; 64 * 64];
-        detect(&img, 20, (3, 3, 61, 61), &mut out, &mut map);
+        detect(&img, 20, (4, 4, 60, 60), &mut out, &mut map);
         let best = out.iter().map(|c| c.score).max().unwrap();
         assert!(
             out.contains(&Corner {
@@ -327,58 +457,6 @@ mod tests {
             out.iter()
                 .all(|c| (c.x as i32 - 32).abs() <= 3 && (c.y as i32 - 32).abs() <= 3),
             "{out:?}"
-        );
-    }
-
-    #[test]
-    fn non_max_suppression_keeps_strict_local_maxima() {
-        let (w, h) = (10, 10);
-        let mut map = vec![0u8; w * h];
-        let mut cs = vec![
-            Corner {
-                x: 3,
-                y: 3,
-                score: 50,
-            },
-            Corner {
-                x: 4,
-                y: 3,
-                score: 40,
-            },
-            Corner {
-                x: 7,
-                y: 7,
-                score: 30,
-            },
-            Corner {
-                x: 7,
-                y: 8,
-                score: 30,
-            },
-            Corner {
-                x: 1,
-                y: 6,
-                score: 10,
-            },
-        ];
-        for c in &cs {
-            map[c.y as usize * w + c.x as usize] = c.score;
-        }
-        non_max_suppression(&mut cs, &map, w, h);
-        assert_eq!(
-            cs,
-            vec![
-                Corner {
-                    x: 3,
-                    y: 3,
-                    score: 50
-                },
-                Corner {
-                    x: 1,
-                    y: 6,
-                    score: 10
-                }
-            ]
         );
     }
 }

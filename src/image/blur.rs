@@ -14,6 +14,7 @@ const fn gaussian_kernel() -> [u32; 7] {
 /// Blurs the interior of `src` into `dst` (same size and pad), then fills `dst`'s border.
 /// `tmp` holds the vertical pass (resized once). Both passes run in 16-bit lanes: the kernel sums
 /// to 256, so `255 * 256` fits; the intermediate is rounded to 8 bits (error <= 1 grey level).
+#[inline(always)]
 pub fn gaussian_blur_7x7(src: &PaddedImage, dst: &mut PaddedImage, tmp: &mut Vec<u16>) {
     let (w, h) = (src.width, src.height);
     debug_assert!(src.pad >= 3 && dst.width == w && dst.height == h);

@@ -1,6 +1,7 @@
 //! Image buffers, the ORB scale pyramid and filters. Buffers are allocated once and reused.
 
 mod blur;
+pub mod colour;
 mod padded;
 mod pyramid;
 pub mod warp;

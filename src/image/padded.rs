@@ -80,14 +80,21 @@ impl PaddedImage {
                 }
             }
         };
-        for y in 0..h {
-            let row = (y + p) * st;
-            for k in 1..=p {
-                let l = reflect(-(k as isize), w);
-                let r = reflect((w - 1 + k) as isize, w);
-                self.data[row + p - k] = self.data[row + p + l];
-                self.data[row + p + w - 1 + k] = self.data[row + p + r];
+        if w > p {
+            // Common case: each side is the mirror image of the first `p` interior pixels.
+            for y in 0..h {
+                let row = &mut self.data[(y + p) * st..(y + p + 1) * st];
+                let (left, rest) = row.split_at_mut(p);
+                for (k, v) in left.iter_mut().rev().enumerate() {
+                    *v = rest[k + 1];
+                }
+                let (inner, right) = rest.split_at_mut(w);
+                for (k, v) in right.iter_mut().enumerate() {
+                    *v = inner[w - 2 - k];
+                }
             }
+        } else {
+            self.fill_side_borders_small(reflect);
         }
         for k in 1..=p {
             let top = reflect(-(k as isize), h) + p;
@@ -96,6 +103,20 @@ impl PaddedImage {
                 .copy_within(top * st..(top + 1) * st, (p - k) * st);
             self.data
                 .copy_within(bot * st..(bot + 1) * st, (p + h - 1 + k) * st);
+        }
+    }
+
+    /// Side borders when the pad is wider than the image (repeated reflection).
+    fn fill_side_borders_small(&mut self, reflect: impl Fn(isize, usize) -> usize) {
+        let (w, h, p, st) = (self.width, self.height, self.pad, self.stride);
+        for y in 0..h {
+            let row = (y + p) * st;
+            for k in 1..=p {
+                let l = reflect(-(k as isize), w);
+                let r = reflect((w - 1 + k) as isize, w);
+                self.data[row + p - k] = self.data[row + p + l];
+                self.data[row + p + w - 1 + k] = self.data[row + p + r];
+            }
         }
     }
 }
@@ -114,5 +135,21 @@ mod tests {
         assert_eq!(im.at(0, -1), 5);
         assert_eq!(im.at(-1, -1), 6);
         assert_eq!(im.at(3, 3), 8);
+    }
+
+    #[test]
+    fn wide_and_narrow_pads_agree_with_reflection() {
+        let data: Vec<u8> = (0..12u8 * 7).collect();
+        let mut wide = PaddedImage::new(12, 7, 5);
+        wide.copy_from(&data);
+        let mut narrow = PaddedImage::new(12, 7, 14);
+        narrow.copy_from(&data);
+        for y in -5..12isize {
+            for x in -5..17isize {
+                assert_eq!(wide.at(x, y), narrow.at(x, y), "({x}, {y})");
+            }
+        }
+        assert_eq!(wide.at(-5, 0), 5);
+        assert_eq!(wide.at(16, 0), 6);
     }
 }

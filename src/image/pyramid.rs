@@ -94,6 +94,7 @@ impl Pyramid {
     }
 
     /// Rebuilds every level (and blurred level) from a tightly packed level-0 image.
+    #[inline(always)]
     pub fn build(&mut self, gray: &[u8]) {
         self.levels[0].copy_from(gray);
         for l in 1..self.levels.len() {
@@ -117,6 +118,7 @@ impl Pyramid {
     }
 
     /// Blurs one level.
+    #[inline(always)]
     pub fn blur_level(&mut self, l: usize) {
         gaussian_blur_7x7(&self.levels[l], &mut self.blurred[l], &mut self.tmp);
     }
@@ -124,6 +126,7 @@ impl Pyramid {
 
 /// Bilinear downsampling with precomputed maps: blend the two source rows (contiguous, SIMD),
 /// then resample the blended row horizontally. `tmp` holds one blended row in 8.8 fixed point.
+#[inline(always)]
 fn resample(
     src: &PaddedImage,
     dst: &mut PaddedImage,
@@ -132,7 +135,8 @@ fn resample(
     tmp: &mut Vec<u16>,
 ) {
     let sw = src.width;
-    tmp.resize(sw, 0);
+    // One spare entry: one-pixel-wide sources still read x0 + 1 (with weight 0).
+    tmp.resize(sw + 1, 0);
     for (y, &(y0, wy)) in ymap.iter().enumerate() {
         let y0 = y0 as usize;
         let (a, b) = (src.row(y0), src.row((y0 + 1).min(src.height - 1)));
@@ -141,10 +145,10 @@ fn resample(
             *t = pa as u16 * wa + pb as u16 * wb;
         }
         let out = dst.row_mut(y);
+        // The maps keep x0 + 1 inside the row (x0 <= max(width - 2, 0)).
         for (o, &(x0, wx)) in out.iter_mut().zip(xmap) {
-            let x0 = x0 as usize;
-            let v =
-                tmp[x0] as u32 * (256 - wx as u32) + tmp[(x0 + 1).min(sw - 1)] as u32 * wx as u32;
+            let pair = &tmp[x0 as usize..x0 as usize + 2];
+            let v = pair[0] as u32 * (256 - wx as u32) + pair[1] as u32 * wx as u32;
             *o = ((v + (1 << 15)) >> 16) as u8;
         }
     }

@@ -71,12 +71,31 @@ pub fn load_tum_depth_frames(
     width: u32,
     height: u32,
     factor: f32,
+    wanted: Option<&[f64]>,
 ) -> Result<Vec<crate::eval::DepthFrame>> {
     let list = dir.join("depth.txt");
     let text = std::fs::read_to_string(&list).map_err(|e| Error::io(&list, e))?;
-    let entries = sdslam_camera::list::parse_tum(&text, &list)?;
-    let mut frames = Vec::with_capacity(entries.len());
-    for e in entries {
+    let mut entries = sdslam_camera::list::parse_tum(&text, &list)?;
+    entries.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+    // Only the depth map nearest in time to some wanted timestamp (the evaluation uses no
+    // other), so a long sequence's depth maps are not all held in memory.
+    let mut keep = vec![wanted.is_none(); entries.len()];
+    for &t in wanted.unwrap_or(&[]) {
+        let i = entries.partition_point(|e| e.timestamp < t);
+        let near = [i.checked_sub(1), (i < entries.len()).then_some(i)]
+            .into_iter()
+            .flatten()
+            .min_by(|&a, &b| {
+                (entries[a].timestamp - t)
+                    .abs()
+                    .total_cmp(&(entries[b].timestamp - t).abs())
+            });
+        if let Some(j) = near {
+            keep[j] = true;
+        }
+    }
+    let mut frames = Vec::with_capacity(keep.iter().filter(|&&k| k).count());
+    for (e, _) in entries.into_iter().zip(keep).filter(|(_, k)| *k) {
         let i = groundtruth.partition_point(|g| g.timestamp < e.timestamp);
         let near = [i.checked_sub(1), Some(i)]
             .into_iter()

@@ -19,28 +19,37 @@ const HEADER_PROPS: &str = "property float x\nproperty float y\nproperty float z
 /// Bytes per vertex: 3 floats, 3 bytes, 1 float, 1 double.
 const VERTEX_BYTES: usize = 12 + 3 + 4 + 8;
 
-/// Encodes `points` as a PLY file image.
-pub fn encode_ply(points: &[CloudPoint]) -> Vec<u8> {
-    let header = format!(
+/// Streams `points` as a PLY file into `w`.
+pub fn encode_ply_into(points: &[CloudPoint], w: &mut dyn std::io::Write) -> std::io::Result<()> {
+    write!(
+        w,
         "ply\nformat binary_little_endian 1.0\ncomment sdslam semi-dense cloud\nelement vertex {}\n{HEADER_PROPS}end_header\n",
         points.len()
-    );
-    let mut out = Vec::with_capacity(header.len() + points.len() * VERTEX_BYTES);
-    out.extend_from_slice(header.as_bytes());
+    )?;
+    let mut v = [0u8; VERTEX_BYTES];
     for p in points {
-        for c in p.position {
-            out.extend_from_slice(&c.to_le_bytes());
+        for (k, c) in p.position.iter().enumerate() {
+            v[4 * k..4 * k + 4].copy_from_slice(&c.to_le_bytes());
         }
-        out.extend_from_slice(&p.rgb);
-        out.extend_from_slice(&p.sigma.to_le_bytes());
-        out.extend_from_slice(&p.timestamp.to_le_bytes());
+        v[12..15].copy_from_slice(&p.rgb);
+        v[15..19].copy_from_slice(&p.sigma.to_le_bytes());
+        v[19..27].copy_from_slice(&p.timestamp.to_le_bytes());
+        w.write_all(&v)?;
     }
+    Ok(())
+}
+
+/// Encodes `points` as a PLY file image.
+pub fn encode_ply(points: &[CloudPoint]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(256 + points.len() * VERTEX_BYTES);
+    // Writing into a Vec cannot fail.
+    let _ = encode_ply_into(points, &mut out);
     out
 }
 
-/// Writes `points` to `path` atomically.
+/// Writes `points` to `path` atomically, streamed (no file image in memory).
 pub fn write_ply(path: &Path, points: &[CloudPoint]) -> Result<()> {
-    super::write_atomic(path, &encode_ply(points))
+    super::write_atomic_with(path, |w| encode_ply_into(points, w))
 }
 
 /// Reads a PLY written by [`encode_ply`] (exactly that layout); for tests and evaluation.

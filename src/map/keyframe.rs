@@ -21,8 +21,11 @@ pub struct KeyFrame {
     pub grid: FeatureGrid,
     /// Undistorted grey image (semi-dense mapping, relocalisation checks).
     pub gray: Vec<u8>,
-    /// Colour, when the source has it (colours the semi-dense cloud).
-    pub rgb: Vec<u8>,
+    /// Colour when the source has it (colours the semi-dense cloud), as half-resolution
+    /// residuals against `gray` ([`crate::image::colour`]): 0.75 bytes per pixel, not 3.
+    pub colour: Vec<u8>,
+    /// Image width (for reading `gray` and `colour`).
+    pub width: usize,
     pub has_color: bool,
     /// Covisible keyframes with shared-point counts, strongest first.
     pub covisibles: Vec<(KeyFrameId, u32)>,
@@ -53,7 +56,8 @@ impl KeyFrame {
                 max_features,
             ),
             gray: Vec::with_capacity(width * height),
-            rgb: Vec::with_capacity(width * height * 3),
+            colour: Vec::with_capacity(crate::image::colour::residual_len(width, height)),
+            width,
             has_color: false,
             covisibles: Vec::with_capacity(64),
             parent: None,
@@ -68,12 +72,26 @@ impl KeyFrame {
         self.descriptors.clear();
         self.points.clear();
         self.gray.clear();
-        self.rgb.clear();
+        self.colour.clear();
         self.has_color = false;
         self.covisibles.clear();
         self.parent = None;
         self.children.clear();
         self.loop_edges.clear();
+    }
+
+    /// Stores the keyframe's undistorted grey image and, when given, its colour (tightly
+    /// packed RGB of the same size) as residuals. Reuses the reserved buffers.
+    pub fn set_images(&mut self, gray: &[u8], rgb: Option<&[u8]>) {
+        self.gray.clear();
+        self.gray.extend_from_slice(gray);
+        self.colour.clear();
+        self.has_color = false;
+        if let Some(c) = rgb {
+            let h = gray.len() / self.width.max(1);
+            crate::image::colour::encode_residual(c, gray, self.width, h, &mut self.colour);
+            self.has_color = !self.colour.is_empty();
+        }
     }
 
     /// Map points observed, with their keypoint index.

@@ -532,6 +532,23 @@ impl Map {
         true
     }
 
+    /// Frees every keyframe's grey and colour image, live or pooled (the run is over; only
+    /// semi-dense mapping and relocalisation checks read them).
+    pub fn release_images(&mut self) {
+        let kfs: Vec<KeyFrameId> = self.keyframes.handles().collect();
+        for k in kfs {
+            if let Some(kf) = self.keyframes.get_mut(k) {
+                kf.gray = Vec::new();
+                kf.colour = Vec::new();
+                kf.has_color = false;
+            }
+        }
+        for kf in &mut self.kf_pool {
+            kf.gray = Vec::new();
+            kf.colour = Vec::new();
+        }
+    }
+
     /// Removes every keyframe and point (buffers return to the pools): a fresh map.
     pub fn reset(&mut self) {
         let kfs: Vec<KeyFrameId> = self.keyframes.handles().collect();

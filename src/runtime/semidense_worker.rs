@@ -142,6 +142,13 @@ impl SemiDenseWorker {
     }
 
     /// The mapper's results, once finished.
+    pub fn mapper_mut(&mut self) -> Option<&mut SemiDenseMapper> {
+        match self {
+            SemiDenseWorker::Done(m) | SemiDenseWorker::Inline(m) => Some(m),
+            _ => None,
+        }
+    }
+
     pub fn mapper(&self) -> Option<&SemiDenseMapper> {
         match self {
             SemiDenseWorker::Done(m) | SemiDenseWorker::Inline(m) => Some(m),

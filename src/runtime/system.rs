@@ -271,6 +271,20 @@ impl System {
         ok
     }
 
+    /// After [`finish`](Self::finish): frees what only running needed (the semi-dense
+    /// gradient cache and per-pixel buffers, its worker threads, keyframe images), so writing
+    /// the outputs does not add to the run's peak memory. Poses, map, cloud and depth maps
+    /// stay readable; nothing can be processed afterwards.
+    pub fn release_working_memory(&mut self) {
+        if !self.finished {
+            return;
+        }
+        if let Some(m) = self.semidense.mapper_mut() {
+            m.release_working_memory();
+        }
+        lock(&self.map).release_images();
+    }
+
     /// What this system's maps are built with (camera and vocabulary), for map files.
     pub fn map_origin(&self) -> MapOrigin {
         let c = &self.camera;
@@ -535,11 +549,7 @@ impl System {
             kf.frame_index = f.index;
             kf.timestamp = f.timestamp;
             kf.t_cw = f.t_cw;
-            kf.gray.extend_from_slice(gray);
-            if let Some(c) = rgb {
-                kf.rgb.extend_from_slice(c);
-                kf.has_color = true;
-            }
+            kf.set_images(gray, rgb);
         });
         let Ok(kf) = res else { return false };
         let obs: Vec<_> = self.frame.inlier_points().collect();

@@ -78,6 +78,10 @@ fn angle_steps(deg: f64) -> u8 {
         .clamp(0.0, 255.0) as u8
 }
 
+/// Pixels added along the line on each side of a search window (so the best sample of a
+/// window at the edge of the consensus still has both neighbours for the sub-pixel step).
+pub const WINDOW_PAD_PX: f64 = 2.0;
+
 /// Geometry of reference keyframe i seen from neighbour j, precomputed per pair.
 #[derive(Clone, Copy, Debug)]
 pub struct StereoPair {
@@ -135,6 +139,26 @@ impl StereoPair {
         target: &GradientImage,
         samples: &mut u64,
     ) -> Option<Hypothesis> {
+        self.search_within(params, x, y, p, rho_range, None, target, samples)
+    }
+
+    /// [`search`](Self::search) visiting only the samples whose inverse depth lies in
+    /// `window` (padded by [`WINDOW_PAD_PX`] along the line): the same lattice of samples as
+    /// the full search, a subset of them. The segment, its parallax check and the sub-pixel
+    /// step are those of the full prior range.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub fn search_within(
+        &self,
+        params: &SearchParams,
+        x: f64,
+        y: f64,
+        p: &PixelGradient,
+        rho_range: (f64, f64),
+        window: Option<(f64, f64)>,
+        target: &GradientImage,
+        samples: &mut u64,
+    ) -> Option<Hypothesis> {
         let a = self.kr * Vector3::new(x, y, 1.0);
         let b = self.kt;
         let (mut lo, mut hi) = (rho_range.0.max(0.0), rho_range.1);
@@ -174,6 +198,26 @@ impl StereoPair {
             (2.0, (target.width - 3) as f64),
             (2.0, (target.height - 3) as f64),
         )?;
+        let (s_lo, s_hi) = match window {
+            None => (s_lo, s_hi),
+            Some((w_lo, w_hi)) => {
+                // The projection is monotonic along the segment (depth stays positive).
+                let s_of = |rho: f64| {
+                    let q = proj(rho.clamp(lo, hi));
+                    (q.0 - p0.0) * dx + (q.1 - p0.1) * dy
+                };
+                let (sa, sb) = (s_of(w_lo), s_of(w_hi));
+                let (sa, sb) = if sa <= sb { (sa, sb) } else { (sb, sa) };
+                let (a_, b_) = (
+                    (sa - WINDOW_PAD_PX).max(s_lo),
+                    (sb + WINDOW_PAD_PX).min(s_hi),
+                );
+                if b_ < a_ {
+                    return None;
+                }
+                (a_, b_)
+            }
+        };
         // Reference gradient orientation rotated into j, and the line direction, in steps.
         let a_ref = p.orientation.wrapping_add(self.rot) & 127;
         let a_line = quantise_orientation(fast_atan2(dy as f32, dx as f32));

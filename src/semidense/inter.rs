@@ -32,6 +32,12 @@ pub struct InterChecker {
 }
 
 impl InterChecker {
+    /// Frees the neighbour maps (no check follows).
+    pub fn release_working_memory(&mut self) {
+        self.maps = Vec::new();
+        self.active = 0;
+    }
+
     pub fn new(k: Intrinsics, width: usize, height: usize, capacity: usize) -> Self {
         let maps = (0..capacity)
             .map(|_| NeighbourMap {

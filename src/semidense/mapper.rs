@@ -115,7 +115,8 @@ pub struct SemiDenseMapper {
     arena: Vec<CloudPixel>,
     // Staging copies taken under the map lock, processed without it.
     gray_ref: Vec<u8>,
-    rgb_ref: Vec<u8>,
+    /// The reference keyframe's colour residuals (see [`crate::image::colour`]).
+    colour_ref: Vec<u8>,
     gray_nb: Vec<Vec<u8>>,
     scratch_f32: Vec<f32>,
     scratch_pixels: Vec<DepthPixel>,
@@ -148,7 +149,7 @@ impl SemiDenseMapper {
             entries: Vec::with_capacity(max_keyframes),
             arena: Vec::with_capacity(config.max_points),
             gray_ref: Vec::with_capacity(width * height),
-            rgb_ref: Vec::with_capacity(width * height * 3),
+            colour_ref: Vec::with_capacity(crate::image::colour::residual_len(width, height)),
             gray_nb: (0..n).map(|_| Vec::with_capacity(width * height)).collect(),
             scratch_f32: Vec::with_capacity(max_features.max(64)),
             scratch_pixels: Vec::with_capacity(width * height),
@@ -158,6 +159,17 @@ impl SemiDenseMapper {
             t_inter: timer(),
             t_keyframe: timer(),
         }
+    }
+
+    /// Drops the buffers only reconstruction needs (the run is over); the cloud, entries and
+    /// depth maps stay readable.
+    pub fn release_working_memory(&mut self) {
+        self.reconstructor.release_working_memory();
+        self.inter.release_working_memory();
+        self.gray_ref = Vec::new();
+        self.colour_ref = Vec::new();
+        self.gray_nb = Vec::new();
+        self.scratch_pixels = Vec::new();
     }
 
     /// Forgets everything (the map was reset: old keyframes are in another frame).
@@ -251,11 +263,7 @@ impl SemiDenseMapper {
         for p in &self.scratch_pixels {
             let i = p.idx as usize;
             let rgb = if has_color {
-                [
-                    self.rgb_ref[3 * i],
-                    self.rgb_ref[3 * i + 1],
-                    self.rgb_ref[3 * i + 2],
-                ]
+                crate::image::colour::colour_at(&self.gray_ref, &self.colour_ref, w, i % w, i / w)
             } else {
                 [self.gray_ref[i]; 3]
             };
@@ -282,6 +290,15 @@ impl SemiDenseMapper {
             elapsed_ms: t0.elapsed().as_secs_f64() * 1e3,
         });
         self.stats.busy_s += t0.elapsed().as_secs_f64();
+        tracing::debug!(
+            timestamp,
+            neighbours = neighbours.len(),
+            searched_pixels = times.searched_pixels,
+            samples = times.samples,
+            points = self.arena.len() - start,
+            depth_ms = times.depth.as_secs_f64() * 1e3,
+            "semi-dense keyframe"
+        );
         self.t_depth.record(times.depth);
         self.t_intra.record(times.intra);
         self.stats.keyframes_reconstructed += 1;
@@ -372,9 +389,9 @@ impl SemiDenseMapper {
         }
         self.gray_ref.clear();
         self.gray_ref.extend_from_slice(&k.gray);
-        self.rgb_ref.clear();
+        self.colour_ref.clear();
         if k.has_color {
-            self.rgb_ref.extend_from_slice(&k.rgb);
+            self.colour_ref.extend_from_slice(&k.colour);
         }
         Some((
             k.t_cw,

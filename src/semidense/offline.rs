@@ -86,11 +86,7 @@ impl Densifier {
             k.frame_index = index;
             k.timestamp = timestamp;
             k.t_cw = t_wc.inverse();
-            k.gray.extend_from_slice(gray);
-            if let Some(c) = rgb {
-                k.rgb.extend_from_slice(c);
-                k.has_color = true;
-            }
+            k.set_images(gray, rgb);
         }) else {
             return false;
         };

@@ -42,6 +42,7 @@ pub struct KeyframeReconstructor {
     pub height: usize,
     params: SearchParams,
     lambda_n: usize,
+    consensus_window: bool,
     /// Gradient images of recent keyframes (least recently used replaced): a keyframe is the
     /// neighbour of about N others, so most are computed once.
     cache: Vec<CachedImage>,
@@ -84,6 +85,7 @@ impl KeyframeReconstructor {
             height,
             params: SearchParams::from_config(config),
             lambda_n: config.lambda_n,
+            consensus_window: config.consensus_window,
             cache: (0..2 * n + 2)
                 .map(|_| CachedImage {
                     key: None,
@@ -106,6 +108,16 @@ impl KeyframeReconstructor {
 
     pub fn max_neighbours(&self) -> usize {
         self.max_neighbours
+    }
+
+    /// Frees the image buffers and worker threads (no reconstruction follows).
+    pub fn release_working_memory(&mut self) {
+        self.cache = Vec::new();
+        self.neighbours.clear();
+        self.pairs = Vec::new();
+        (self.raw_rho, self.raw_s2, self.rho, self.s2) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        self.pool = None;
     }
 
     /// Forgets every cached gradient image (the map was reset).
@@ -192,6 +204,7 @@ impl KeyframeReconstructor {
         let ctx = DepthContext {
             params: self.params,
             lambda_n: self.lambda_n,
+            consensus_window: self.consensus_window,
             reference,
             neighbours: &neighbours[..],
             pairs: &self.pairs,
@@ -282,6 +295,7 @@ where
 struct DepthContext<'a> {
     params: SearchParams,
     lambda_n: usize,
+    consensus_window: bool,
     reference: &'a GradientImage,
     neighbours: &'a [&'a GradientImage],
     pairs: &'a [StereoPair],
@@ -309,22 +323,27 @@ impl DepthContext<'_> {
             pixels += 1;
             let mut n = 0;
             let total = self.pairs.len();
+            let mut window = None;
             for (j, (pair, img)) in self.pairs.iter().zip(self.neighbours).enumerate() {
                 // Fewer than lambda_N hypotheses possible: fusion would reject the pixel.
                 if n + (total - j) < self.lambda_n {
                     break;
                 }
-                if let Some(hy) = pair.search(
+                if let Some(hy) = pair.search_within(
                     &self.params,
                     x as f64,
                     y as f64,
                     p,
                     self.rho_range,
+                    window,
                     img,
                     &mut samples,
                 ) {
                     hyps[n] = hy;
                     n += 1;
+                    if self.consensus_window && window.is_none() {
+                        window = consensus_window(&hyps[..n]);
+                    }
                 }
             }
             if let Some((r, s2)) = fuse(&hyps[..n], self.lambda_n) {
@@ -335,4 +354,19 @@ impl DepthContext<'_> {
         self.pixels.fetch_add(pixels, Ordering::Relaxed);
         self.samples.fetch_add(samples, Ordering::Relaxed);
     }
+}
+
+/// The inverse depths a further hypothesis must fall in to be compatible (eq. 10) with the
+/// newest hypothesis and one earlier hypothesis it is compatible with: rho +- sqrt(5.99) sigma
+/// of each of the two (a wider new hypothesis only narrows the test). `None` until such a
+/// pair exists.
+fn consensus_window(h: &[Hypothesis]) -> Option<(f64, f64)> {
+    let (last, earlier) = h.split_last()?;
+    let k = super::fusion::CHI2_2DOF_95.sqrt();
+    let partner = earlier.iter().find(|e| {
+        super::fusion::compatible(e.rho, e.sigma * e.sigma, last.rho, last.sigma * last.sigma)
+    })?;
+    let lo = (last.rho - k * last.sigma).min(partner.rho - k * partner.sigma);
+    let hi = (last.rho + k * last.sigma).max(partner.rho + k * partner.sigma);
+    Some((lo as f64, hi as f64))
 }

@@ -27,9 +27,10 @@ impl System {
             kf.descriptors.extend_from_slice(&reference.descriptors);
             kf.frame_index = init.reference_index;
             kf.timestamp = init.reference_timestamp;
-            kf.gray.extend_from_slice(&init.reference_gray);
-            kf.rgb.extend_from_slice(&init.reference_rgb);
-            kf.has_color = init.reference_has_color;
+            kf.set_images(
+                &init.reference_gray,
+                init.reference_has_color.then_some(&init.reference_rgb[..]),
+            );
         }) else {
             return TrackingState::NotInitialised;
         };
@@ -40,11 +41,7 @@ impl System {
             kf.frame_index = f.index;
             kf.timestamp = f.timestamp;
             kf.t_cw = CameraFromWorld(motion.t_21);
-            kf.gray.extend_from_slice(gray);
-            if let Some(c) = rgb {
-                kf.rgb.extend_from_slice(c);
-                kf.has_color = true;
-            }
+            kf.set_images(gray, rgb);
         }) else {
             map.reset();
             return TrackingState::NotInitialised;
