@@ -143,7 +143,7 @@ impl StereoPair {
     }
 
     /// [`search`](Self::search) visiting only the samples whose inverse depth lies in
-    /// `window` (padded by [`WINDOW_PAD_PX`] along the line): the same lattice of samples as
+    /// `window` (padded by `WINDOW_PAD_PX` along the line): the same lattice of samples as
     /// the full search, a subset of them. The segment, its parallax check and the sub-pixel
     /// step are those of the full prior range.
     #[inline]
