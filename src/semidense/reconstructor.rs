@@ -370,3 +370,23 @@ fn consensus_window(h: &[Hypothesis]) -> Option<(f64, f64)> {
     let hi = (last.rho + k * last.sigma).max(partner.rho + k * partner.sigma);
     Some((lo as f64, hi as f64))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn h(rho: f32, sigma: f32) -> Hypothesis {
+        Hypothesis { rho, sigma }
+    }
+
+    #[test]
+    fn consensus_window_needs_a_compatible_pair_and_covers_both() {
+        assert_eq!(consensus_window(&[h(1.0, 0.01)]), None);
+        // Incompatible: 0.5 apart with sigmas 0.01.
+        assert_eq!(consensus_window(&[h(1.0, 0.01), h(1.5, 0.01)]), None);
+        let (lo, hi) = consensus_window(&[h(1.5, 0.01), h(1.0, 0.01), h(1.01, 0.02)]).unwrap();
+        let k = super::super::fusion::CHI2_2DOF_95.sqrt() as f64;
+        assert!((lo - (1.01 - k * 0.02)).abs() < 1e-6, "{lo}");
+        assert!((hi - (1.01 + k * 0.02)).abs() < 1e-6, "{hi}");
+    }
+}
