@@ -99,10 +99,7 @@ pub fn eval(cmd: EvalCommand) -> Result<()> {
                 ))
             })?;
             if a.json {
-                println!(
-                    "{}",
-                    serde_json::to_string(&r).map_err(|e| Error::Invalid(e.to_string()))?
-                );
+                print_json(&r)?;
             } else {
                 println!("matched    {} poses ({} unmatched)", r.matched, r.unmatched);
                 println!("ATE rmse   {:.6} m", r.rmse_m);
@@ -133,10 +130,7 @@ pub fn eval(cmd: EvalCommand) -> Result<()> {
                 ))
             })?;
             if a.json {
-                println!(
-                    "{}",
-                    serde_json::to_string(&r).map_err(|e| Error::Invalid(e.to_string()))?
-                );
+                print_json(&r)?;
             } else {
                 println!("pairs      {} ({} s apart)", r.pairs, r.delta_s);
                 println!(
@@ -213,10 +207,7 @@ fn cloud(a: CloudArgs) -> Result<()> {
         }
     }
     if a.json {
-        println!(
-            "{}",
-            serde_json::to_string(&r).map_err(|e| Error::Invalid(e.to_string()))?
-        );
+        print_json(&r)?;
     } else {
         println!(
             "points     {} ({} evaluated, {} keyframes, {:.0} per keyframe)",
@@ -229,5 +220,12 @@ fn cloud(a: CloudArgs) -> Result<()> {
         println!("within 2%  {:.2}%", r.within_2pct * 100.0);
         println!("beyond 10% {:.3}% (outliers)", r.outliers_10pct * 100.0);
     }
+    Ok(())
+}
+
+/// Prints `value` as one line of JSON (the `--json` output of the evaluation commands).
+fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
+    let line = serde_json::to_string(value).map_err(|e| Error::Invalid(e.to_string()))?;
+    println!("{line}");
     Ok(())
 }
