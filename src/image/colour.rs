@@ -16,10 +16,36 @@ pub fn encode_residual(rgb: &[u8], gray: &[u8], width: usize, height: usize, out
         return;
     }
     for by in 0..height.div_ceil(2) {
-        for bx in 0..width.div_ceil(2) {
+        let (y0, full_rows) = (2 * by, 2 * by + 1 < height);
+        let mut bx = 0;
+        if full_rows {
+            // Interior 2 x 2 blocks: fixed size, no bounds juggling (this runs on the tracking
+            // thread at every keyframe insertion).
+            let (g0, g1) = (
+                &gray[y0 * width..][..width],
+                &gray[(y0 + 1) * width..][..width],
+            );
+            let (c0, c1) = (
+                &rgb[3 * y0 * width..][..3 * width],
+                &rgb[3 * (y0 + 1) * width..][..3 * width],
+            );
+            for ((ga, gb), (ca, cb)) in g0
+                .chunks_exact(2)
+                .zip(g1.chunks_exact(2))
+                .zip(c0.chunks_exact(6).zip(c1.chunks_exact(6)))
+            {
+                let g = ga[0] as i32 + ga[1] as i32 + gb[0] as i32 + gb[1] as i32;
+                for c in 0..3 {
+                    let s = ca[c] as i32 + ca[3 + c] as i32 + cb[c] as i32 + cb[3 + c] as i32;
+                    out.push(halved_mean(s - g, 4));
+                }
+            }
+            bx = width / 2;
+        }
+        for bx in bx..width.div_ceil(2) {
             let mut sum = [0i32; 3];
             let mut n = 0i32;
-            for y in 2 * by..(2 * by + 2).min(height) {
+            for y in y0..(y0 + 2).min(height) {
                 for x in 2 * bx..(2 * bx + 2).min(width) {
                     let i = y * width + x;
                     let g = gray[i] as i32;
@@ -30,12 +56,18 @@ pub fn encode_residual(rgb: &[u8], gray: &[u8], width: usize, height: usize, out
                 }
             }
             for s in sum {
-                // Mean residual in [-255, 255], halved (rounded) into [-128, 127].
-                let half = (s + n * s.signum()) / (2 * n);
-                out.push((half.clamp(-128, 127) + 128) as u8);
+                out.push(halved_mean(s, n));
             }
         }
     }
+}
+
+/// The mean residual `sum / n` in [-255, 255], halved (rounded away from zero) into a byte
+/// offset by 128.
+#[inline(always)]
+fn halved_mean(sum: i32, n: i32) -> u8 {
+    let half = (sum + n * sum.signum()) / (2 * n);
+    (half.clamp(-128, 127) + 128) as u8
 }
 
 /// Colour of pixel (x, y) from its grey value and the residual image (grey when `residual` is
@@ -91,5 +123,37 @@ mod tests {
         encode_residual(&rgb, &gray, 2, 1, &mut res);
         let c = colour_at(&gray, &res, 2, 1, 0);
         assert!(c[0] >= 253 && c[1] == 0 && c[2] >= 253, "{c:?}");
+    }
+
+    #[test]
+    fn interior_fast_path_equals_the_per_block_mean_on_every_size_parity() {
+        for (w, h) in [(8usize, 6usize), (9, 6), (8, 7), (9, 7)] {
+            // Pseudo-random colour and grey (an LCG), so residuals of every sign occur.
+            let mut state = 12345u32;
+            let mut next = || {
+                state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
+                (state >> 16) as u8
+            };
+            let rgb: Vec<u8> = (0..3 * w * h).map(|_| next()).collect();
+            let gray: Vec<u8> = (0..w * h).map(|_| next()).collect();
+            let mut res = Vec::new();
+            encode_residual(&rgb, &gray, w, h, &mut res);
+            let bw = w.div_ceil(2);
+            for by in 0..h.div_ceil(2) {
+                for bx in 0..bw {
+                    for c in 0..3 {
+                        let (mut s, mut n) = (0i32, 0i32);
+                        for y in 2 * by..(2 * by + 2).min(h) {
+                            for x in 2 * bx..(2 * bx + 2).min(w) {
+                                s += rgb[3 * (y * w + x) + c] as i32 - gray[y * w + x] as i32;
+                                n += 1;
+                            }
+                        }
+                        let want = halved_mean(s, n);
+                        assert_eq!(res[3 * (by * bw + bx) + c], want, "{w}x{h} ({bx},{by}) {c}");
+                    }
+                }
+            }
+        }
     }
 }

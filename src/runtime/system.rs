@@ -26,9 +26,11 @@ use crate::semidense::{Intrinsics, SemiDenseMapper};
 use crate::tracking::{InitAttempt, Initializer, TrackedFrame, Tracker, TrackingState};
 use std::collections::HashMap;
 
+mod backfill;
 mod initialisation;
 mod mapping_thread;
 
+use backfill::{Backfill, BACKFILL_PER_FRAME};
 use mapping_thread::spawn_mapper;
 
 /// What happened to one frame.
@@ -103,6 +105,8 @@ pub struct System {
     vocabulary: Option<Arc<Vocabulary>>,
     places: Arc<Mutex<PlaceIndex>>,
     init: Initializer,
+    /// Poses of the frames before initialisation, computed a few per frame after it.
+    backfill: Backfill,
     /// Track against the map without changing it (no keyframes, no BA, no reset).
     localize_only: bool,
     frame: TrackedFrame,
@@ -197,6 +201,7 @@ impl System {
             global_ba_after_loop: config.map.global_ba_after_loop,
             finished: false,
             init: Initializer::new(max_features, w, h),
+            backfill: Backfill::default(),
             frame: TrackedFrame::new(max_features, w, h),
             trajectory: Vec::with_capacity(expected_frames),
             stats: SystemStats {
@@ -254,6 +259,11 @@ impl System {
                 None => true,
             };
             idle.store(true, Ordering::Release);
+        }
+        if self.backfill.active() {
+            let map_arc = Arc::clone(&self.map);
+            let mut m = lock(&map_arc);
+            self.backfill_step(&mut m, usize::MAX);
         }
         // Final full BA (every keyframe and point; the first keyframe fixed) before the last
         // semi-dense keyframes are reconstructed, so they and the cloud use the refined poses.
@@ -425,6 +435,7 @@ impl System {
             } else {
                 self.tracker.track(map, &mut self.frame)
             };
+            self.backfill_step(map, BACKFILL_PER_FRAME);
             let idle = match &self.mapping {
                 Mapping::Inline(_) => true,
                 Mapping::Thread { idle, .. } => idle.load(Ordering::Acquire),
@@ -513,6 +524,8 @@ impl System {
     }
 
     fn reset(&mut self, map: &mut Map) {
+        // Frames tracked in the discarded map keep no pose; an unfinished backfill ends.
+        self.backfill = Backfill::default();
         map.reset();
         {
             let n = self.vocabulary.as_ref().map_or(0, |v| v.n_words());

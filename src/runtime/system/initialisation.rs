@@ -1,5 +1,4 @@
-//! Map initialisation from two views (the first keyframes, scaled to median depth 1) and the
-//! backfill of the frames seen before it.
+//! Map initialisation from two views (the first keyframes, scaled to median depth 1).
 
 use super::*;
 
@@ -106,90 +105,10 @@ impl System {
             t_c_ref: Se3::identity(),
             t_cw: CameraFromWorld::identity(),
         });
-        let backfilled = self.backfill(map, kf0, kf1);
-        // The reference frame (keyframe 0) and the backfilled frames have poses.
-        self.stats.tracked_frames += 1 + backfilled;
-        self.stats.backfilled_frames += backfilled;
+        // The reference frame (keyframe 0) has a pose; the frames between it and this one get
+        // theirs over the next frames (`backfill_step`), keeping this frame within its deadline.
+        self.stats.tracked_frames += 1;
+        self.backfill.start(kf0, kf1, map.n_points());
         TrackingState::Ok
-    }
-
-    /// Tracks the frames seen between the reference and initialisation against the new map
-    /// (pose guess interpolated between the two keyframes, projection search, motion-only BA),
-    /// so they get poses too. Returns how many did.
-    fn backfill(&mut self, map: &mut Map, kf0: KeyFrameId, kf1: KeyFrameId) -> usize {
-        let (Some(k0), Some(k1)) = (map.keyframe(kf0), map.keyframe(kf1)) else {
-            return 0;
-        };
-        let (ts0, ts1) = (k0.timestamp, k1.timestamp);
-        let (p0, p1) = (k0.t_cw.0, k1.t_cw.0);
-        let (sf, nl) = (map.config.scale_factor, map.config.n_levels);
-        let pts: Vec<_> = map
-            .points()
-            .map(|(id, p)| (id, p.position, p.descriptor, p.max_distance))
-            .collect();
-        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
-        let mut tf = TrackedFrame::new(self.frame.features.keypoints.capacity(), w, h);
-        let mut projected = Vec::with_capacity(pts.len());
-        let mut scratch = Vec::new();
-        let mut done = 0;
-        for pf in self.init.pending() {
-            if ts1 <= ts0 {
-                break;
-            }
-            let a = ((pf.timestamp - ts0) / (ts1 - ts0)).clamp(0.0, 1.0);
-            let rot = p0.rotation.slerp(&p1.rotation, a);
-            let trans = p0.translation.vector.lerp(&p1.translation.vector, a);
-            tf.index = pf.index;
-            tf.timestamp = pf.timestamp;
-            tf.features.copy_from(&pf.features);
-            tf.reset_matches();
-            tf.t_cw = CameraFromWorld(Se3::from_parts(nalgebra::Translation3::from(trans), rot));
-            projected.clear();
-            for (k, &(_, pos, desc, max_d)) in pts.iter().enumerate() {
-                let pc = tf.t_cw.transform(&pos);
-                let Some(uv) = self.camera.project(&pc) else {
-                    continue;
-                };
-                if !self.camera.in_image(uv.x, uv.y, 0.0) {
-                    continue;
-                }
-                let level = ((max_d / pc.norm().max(1e-9)).ln() / sf.ln())
-                    .ceil()
-                    .clamp(0.0, (nl - 1) as f64) as u8;
-                projected.push(crate::matching::search::ProjectedPoint {
-                    id: k as u32,
-                    uv: uv.cast(),
-                    level,
-                    descriptor: desc,
-                    radius_factor: 1.0,
-                });
-            }
-            let mut m: Vec<Option<u32>> = vec![None; tf.features.len()];
-            crate::matching::search::search_by_projection(
-                &projected,
-                &tf.features.keypoints,
-                &tf.features.descriptors,
-                &tf.grid,
-                &self.tracker.scales,
-                15.0,
-                0.9,
-                &mut m,
-                &mut scratch,
-            );
-            for (j, mm) in m.iter().enumerate() {
-                tf.points[j] = mm.map(|k| pts[k as usize].0);
-            }
-            let n = self.tracker.optimize_pose(map, &mut tf);
-            if n >= self.tracker.config.min_inliers {
-                self.trajectory.push(TrajectoryEntry {
-                    timestamp: tf.timestamp,
-                    reference: Some(kf0),
-                    t_c_ref: tf.t_cw.0 * p0.inverse(),
-                    t_cw: tf.t_cw,
-                });
-                done += 1;
-            }
-        }
-        done
     }
 }

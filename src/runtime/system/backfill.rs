@@ -1,0 +1,134 @@
+//! Poses for the frames seen between the initialisation reference and the frame that
+//! initialised the map, tracked against the new map a few per frame after initialisation
+//! (doing all of them at once took ~15 ms and made the initialising frame miss its deadline).
+
+use super::*;
+use crate::matching::search::{search_by_projection, ProjectedPoint};
+use nalgebra::Vector3;
+
+/// Pending frames tracked per processed frame (each ~0.5 ms); 30 pending frames are done
+/// within 10 frames.
+pub(super) const BACKFILL_PER_FRAME: usize = 3;
+
+/// The backfill in progress and its reused buffers (allocated when initialisation starts it).
+#[derive(Default)]
+pub(super) struct Backfill {
+    /// The two initial keyframes and the next pending frame to track.
+    job: Option<(KeyFrameId, KeyFrameId, usize)>,
+    frame: Option<TrackedFrame>,
+    /// Map points now: (id, position, descriptor, max distance).
+    points: Vec<(
+        crate::map::MapPointId,
+        Vector3<f64>,
+        crate::features::Descriptor,
+        f64,
+    )>,
+    projected: Vec<ProjectedPoint>,
+    matches: Vec<Option<u32>>,
+    scratch: Vec<u32>,
+}
+
+impl Backfill {
+    pub(super) fn start(&mut self, kf0: KeyFrameId, kf1: KeyFrameId, n_points: usize) {
+        self.job = Some((kf0, kf1, 0));
+        self.points.reserve(2 * n_points);
+        self.projected.reserve(2 * n_points);
+    }
+
+    pub(super) fn active(&self) -> bool {
+        self.job.is_some()
+    }
+}
+
+impl System {
+    /// Tracks up to `max_frames` pending frames against the map: pose guess interpolated
+    /// between the two initial keyframes, projection search, motion-only BA. Frames with too
+    /// few inliers stay without a pose. Ends the backfill when every pending frame is done.
+    pub(super) fn backfill_step(&mut self, map: &mut Map, max_frames: usize) {
+        let Some((kf0, kf1, next)) = self.backfill.job else {
+            return;
+        };
+        let pending = self.init.pending();
+        let (Some(k0), Some(k1)) = (map.keyframe(kf0), map.keyframe(kf1)) else {
+            self.backfill.job = None;
+            return;
+        };
+        let (ts0, ts1) = (k0.timestamp, k1.timestamp);
+        if ts1 <= ts0 || next >= pending.len() {
+            self.backfill.job = None;
+            return;
+        }
+        let (p0, p1) = (k0.t_cw.0, k1.t_cw.0);
+        let (sf, nl) = (map.config.scale_factor, map.config.n_levels);
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let bf = &mut self.backfill;
+        // Points as they are now (local mapping may have culled or added some since).
+        bf.points.clear();
+        bf.points.extend(
+            map.points()
+                .map(|(id, p)| (id, p.position, p.descriptor, p.max_distance)),
+        );
+        let tf = bf.frame.get_or_insert_with(|| {
+            TrackedFrame::new(self.frame.features.keypoints.capacity(), w, h)
+        });
+        let end = (next + max_frames).min(pending.len());
+        for pf in &pending[next..end] {
+            let a = ((pf.timestamp - ts0) / (ts1 - ts0)).clamp(0.0, 1.0);
+            let rot = p0.rotation.slerp(&p1.rotation, a);
+            let trans = p0.translation.vector.lerp(&p1.translation.vector, a);
+            tf.index = pf.index;
+            tf.timestamp = pf.timestamp;
+            tf.features.copy_from(&pf.features);
+            tf.reset_matches();
+            tf.t_cw = CameraFromWorld(Se3::from_parts(nalgebra::Translation3::from(trans), rot));
+            bf.projected.clear();
+            for (k, &(_, pos, desc, max_d)) in bf.points.iter().enumerate() {
+                let pc = tf.t_cw.transform(&pos);
+                let Some(uv) = self.camera.project(&pc) else {
+                    continue;
+                };
+                if !self.camera.in_image(uv.x, uv.y, 0.0) {
+                    continue;
+                }
+                let level = ((max_d / pc.norm().max(1e-9)).ln() / sf.ln())
+                    .ceil()
+                    .clamp(0.0, (nl - 1) as f64) as u8;
+                bf.projected.push(ProjectedPoint {
+                    id: k as u32,
+                    uv: uv.cast(),
+                    level,
+                    descriptor: desc,
+                    radius_factor: 1.0,
+                });
+            }
+            bf.matches.clear();
+            bf.matches.resize(tf.features.len(), None);
+            search_by_projection(
+                &bf.projected,
+                &tf.features.keypoints,
+                &tf.features.descriptors,
+                &tf.grid,
+                &self.tracker.scales,
+                15.0,
+                0.9,
+                &mut bf.matches,
+                &mut bf.scratch,
+            );
+            for (j, m) in bf.matches.iter().enumerate() {
+                tf.points[j] = m.map(|k| bf.points[k as usize].0);
+            }
+            let n = self.tracker.optimize_pose(map, tf);
+            if n >= self.tracker.config.min_inliers {
+                self.trajectory.push(TrajectoryEntry {
+                    timestamp: tf.timestamp,
+                    reference: Some(kf0),
+                    t_c_ref: tf.t_cw.0 * p0.inverse(),
+                    t_cw: tf.t_cw,
+                });
+                self.stats.tracked_frames += 1;
+                self.stats.backfilled_frames += 1;
+            }
+        }
+        self.backfill.job = (end < pending.len()).then_some((kf0, kf1, end));
+    }
+}
