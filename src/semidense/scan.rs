@@ -217,7 +217,41 @@ unsafe fn scan_avx2(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]
         // (one gather); the winner's residuals are interpolated on the line afterwards.
         let row = _mm256_srai_epi32::<16>(_mm256_add_epi32(minor, half_px));
         let idx = _mm256_add_epi32(major, _mm256_mullo_epi32(row, stride_n));
-        let near = _mm256_mask_i32gather_epi32::<4>(_mm256_setzero_si256(), base, idx, live);
+        // Few rows crossed by the eight samples: masked contiguous loads, one per row
+        // (cheaper than a gather; masked-out lanes read nothing).
+        let minor_first = walk.minor0 + walk.minor_step * k0 as i32;
+        let r_a = (minor_first + 32768) >> 16;
+        let r_b = (minor_first + 7 * walk.minor_step + 32768) >> 16;
+        let (r_lo, r_hi) = (r_a.min(r_b), r_a.max(r_b));
+        let major_first = walk.major0 as isize + walk.major_step as isize * k0 as isize;
+        let near = if r_hi - r_lo < LOAD_ROWS_MAX / 2 {
+            let forward = walk.major_step > 0;
+            let rev = _mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0);
+            // Backward walks: lane l reads major_first - l; load the 8 words ending there
+            // in reversed lane order and reverse them afterwards.
+            let (row_o, live_o, start) = if forward {
+                (row, live, major_first)
+            } else {
+                (
+                    _mm256_permutevar8x32_epi32(row, rev),
+                    _mm256_permutevar8x32_epi32(live, rev),
+                    major_first - 7,
+                )
+            };
+            let mut near = _mm256_setzero_si256();
+            for r in r_lo..=r_hi {
+                let m = _mm256_and_si256(live_o, _mm256_cmpeq_epi32(row_o, _mm256_set1_epi32(r)));
+                let p = base.wrapping_offset(start + r as isize * walk.stride_n as isize);
+                near = _mm256_or_si256(near, _mm256_maskload_epi32(p, m));
+            }
+            if forward {
+                near
+            } else {
+                _mm256_permutevar8x32_epi32(near, rev)
+            }
+        } else {
+            _mm256_mask_i32gather_epi32::<4>(_mm256_setzero_si256(), base, idx, live)
+        };
         let code = _mm256_and_si256(near, byte);
         let o = _mm256_srli_epi32::<1>(code);
         let d3 = _mm256_and_si256(_mm256_sub_epi32(o, a_ref), m127);
@@ -229,25 +263,24 @@ unsafe fn scan_avx2(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]
             _mm256_and_si256(strong, live),
             _mm256_and_si256(_mm256_cmpgt_epi32(t3, d3), _mm256_cmpgt_epi32(t2, d2)),
         );
-        if _mm256_testz_si256(ok, ok) == 0 {
-            // Same arithmetic as `error`, eight lanes at a time.
-            let i = _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32::<8>(near), byte));
-            let g = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32::<16>(near)), inv_mod);
-            let ri = _mm256_sub_ps(pi, i);
-            let rg = _mm256_sub_ps(pg, g);
-            let e = _mm256_mul_ps(
-                _mm256_add_ps(
-                    _mm256_mul_ps(ri, ri),
-                    _mm256_mul_ps(_mm256_mul_ps(rg, rg), inv_theta),
-                ),
-                inv_s2,
-            );
-            let e = _mm256_blendv_ps(inf, e, _mm256_castsi256_ps(ok));
-            // Per lane, keep the first minimum (strictly smaller replaces).
-            let better = _mm256_cmp_ps::<_CMP_LT_OQ>(e, best_e);
-            best_e = _mm256_blendv_ps(best_e, e, better);
-            best_k = _mm256_blendv_epi8(best_k, kv, _mm256_castps_si256(better));
-        }
+        // Same arithmetic as `error`, eight lanes at a time (no branch on `ok`: it is
+        // data-dependent and mispredicts).
+        let i = _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32::<8>(near), byte));
+        let g = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32::<16>(near)), inv_mod);
+        let ri = _mm256_sub_ps(pi, i);
+        let rg = _mm256_sub_ps(pg, g);
+        let e = _mm256_mul_ps(
+            _mm256_add_ps(
+                _mm256_mul_ps(ri, ri),
+                _mm256_mul_ps(_mm256_mul_ps(rg, rg), inv_theta),
+            ),
+            inv_s2,
+        );
+        let e = _mm256_blendv_ps(inf, e, _mm256_castsi256_ps(ok));
+        // Per lane, keep the first minimum (strictly smaller replaces).
+        let better = _mm256_cmp_ps::<_CMP_LT_OQ>(e, best_e);
+        best_e = _mm256_blendv_ps(best_e, e, better);
+        best_k = _mm256_blendv_epi8(best_k, kv, _mm256_castps_si256(better));
         kv = _mm256_add_epi32(kv, eight);
         major = _mm256_add_epi32(major, major_8);
         minor = _mm256_add_epi32(minor, minor_8);
@@ -259,6 +292,9 @@ unsafe fn scan_avx2(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]
     _mm256_storeu_si256(ks.as_mut_ptr() as *mut __m256i, best_k);
     finish(reduce_lanes(&es, &ks), walk, probe, params, t)
 }
+
+/// Most rows sixteen samples may span for the contiguous-load path (beyond it, one gather).
+const LOAD_ROWS_MAX: i32 = 8;
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
@@ -302,13 +338,48 @@ unsafe fn scan_avx512(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u3
     while k0 < walk.n {
         let live = _mm512_cmpgt_epi32_mask(n, kv);
         let row = _mm512_srai_epi32::<16>(_mm512_add_epi32(minor, half_px));
-        let idx = _mm512_add_epi32(major, _mm512_mullo_epi32(row, stride_n));
-        let near = _mm512_mask_i32gather_epi32::<4>(
-            _mm512_setzero_si512(),
-            live,
-            idx,
-            t.as_ptr() as *const i32,
-        );
+        // The sixteen samples' rows (of the walked image) span r_lo..=r_hi; a shallow line
+        // crosses few rows, and one masked contiguous load per row is much cheaper than a
+        // gather (masked-out lanes read nothing).
+        let minor_first = walk.minor0 + walk.minor_step * k0 as i32;
+        let r_a = (minor_first + 32768) >> 16;
+        let r_b = (minor_first + 15 * walk.minor_step + 32768) >> 16;
+        let (r_lo, r_hi) = (r_a.min(r_b), r_a.max(r_b));
+        let major_first = walk.major0 as isize + walk.major_step as isize * k0 as isize;
+        let near = if r_hi - r_lo < LOAD_ROWS_MAX {
+            let base = t.as_ptr() as *const i32;
+            if walk.major_step > 0 {
+                let mut near = _mm512_setzero_si512();
+                for r in r_lo..=r_hi {
+                    let m = live & _mm512_cmpeq_epi32_mask(row, _mm512_set1_epi32(r));
+                    let p = base.wrapping_offset(major_first + r as isize * walk.stride_n as isize);
+                    near = _mm512_mask_loadu_epi32(near, m, p);
+                }
+                near
+            } else {
+                // Lane l reads the word at major_first - l: load the 16 words ending there
+                // and reverse them.
+                let rev = _mm512_setr_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0);
+                let row_r = _mm512_permutexvar_epi32(rev, row);
+                let live_r = live.reverse_bits();
+                let mut near = _mm512_setzero_si512();
+                for r in r_lo..=r_hi {
+                    let m = live_r & _mm512_cmpeq_epi32_mask(row_r, _mm512_set1_epi32(r));
+                    let p = base
+                        .wrapping_offset(major_first - 15 + r as isize * walk.stride_n as isize);
+                    near = _mm512_mask_loadu_epi32(near, m, p);
+                }
+                _mm512_permutexvar_epi32(rev, near)
+            }
+        } else {
+            let idx = _mm512_add_epi32(major, _mm512_mullo_epi32(row, stride_n));
+            _mm512_mask_i32gather_epi32::<4>(
+                _mm512_setzero_si512(),
+                live,
+                idx,
+                t.as_ptr() as *const i32,
+            )
+        };
         let code = _mm512_and_si512(near, byte);
         let o = _mm512_srli_epi32::<1>(code);
         let d3 = _mm512_and_si512(_mm512_sub_epi32(o, a_ref), m127);
@@ -319,24 +390,23 @@ unsafe fn scan_avx512(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u3
             & _mm512_cmpeq_epi32_mask(_mm512_and_si512(code, one), one)
             & _mm512_cmpgt_epi32_mask(t3, d3)
             & _mm512_cmpgt_epi32_mask(t2, d2);
-        if ok != 0 {
-            // Same arithmetic as `error`, sixteen lanes at a time.
-            let i = _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32::<8>(near), byte));
-            let g = _mm512_mul_ps(_mm512_cvtepi32_ps(_mm512_srli_epi32::<16>(near)), inv_mod);
-            let ri = _mm512_sub_ps(pi, i);
-            let rg = _mm512_sub_ps(pg, g);
-            let e = _mm512_mul_ps(
-                _mm512_add_ps(
-                    _mm512_mul_ps(ri, ri),
-                    _mm512_mul_ps(_mm512_mul_ps(rg, rg), inv_theta),
-                ),
-                inv_s2,
-            );
-            // Per lane, keep the first minimum (strictly smaller replaces).
-            let better = ok & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(e, best_e);
-            best_e = _mm512_mask_blend_ps(better, best_e, e);
-            best_k = _mm512_mask_blend_epi32(better, best_k, kv);
-        }
+        // Same arithmetic as `error`, sixteen lanes at a time; no branch on `ok` (it is
+        // data-dependent and mispredicts, exposing the gather latency every time).
+        let i = _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32::<8>(near), byte));
+        let g = _mm512_mul_ps(_mm512_cvtepi32_ps(_mm512_srli_epi32::<16>(near)), inv_mod);
+        let ri = _mm512_sub_ps(pi, i);
+        let rg = _mm512_sub_ps(pg, g);
+        let e = _mm512_mul_ps(
+            _mm512_add_ps(
+                _mm512_mul_ps(ri, ri),
+                _mm512_mul_ps(_mm512_mul_ps(rg, rg), inv_theta),
+            ),
+            inv_s2,
+        );
+        // Per lane, keep the first minimum (strictly smaller replaces).
+        let better = ok & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(e, best_e);
+        best_e = _mm512_mask_blend_ps(better, best_e, e);
+        best_k = _mm512_mask_blend_epi32(better, best_k, kv);
         kv = _mm512_add_epi32(kv, sixteen);
         major = _mm512_add_epi32(major, major_16);
         minor = _mm512_add_epi32(minor, minor_16);
@@ -371,17 +441,35 @@ mod tests {
         }
         let params = SearchParams::from_config(&crate::config::SemiDenseConfig::default());
         let mut simd_checked = 0;
-        for trial in 0..500 {
+        for trial in 0..2000 {
             // Walks along rows of the image, or of its transpose (stride h).
             let horizontal = trial % 2 == 0;
             let (len_m, len_n) = if horizontal { (w, h) } else { (h, w) };
-            let n = 1 + (rnd() as usize % (len_m - 6));
-            let major0 = 2 + (rnd() as usize % (len_m - 4 - n)).min(len_m - 4) as i32;
+            // Shallow and steep slopes (up to 1: the walk follows the major axis), forward
+            // and backward walks, all samples inside the image.
+            let minor_step = if trial % 4 < 2 {
+                (rnd() % 2000) as i32 - 1000
+            } else {
+                (rnd() % 131_073) as i32 - 65_536
+            };
+            let minor_start = 2 + rnd() as usize % (len_n - 6);
+            let room = if minor_step >= 0 {
+                len_n - 3 - minor_start
+            } else {
+                minor_start - 1
+            };
+            let by_minor = match minor_step.unsigned_abs() as usize {
+                0 => len_m,
+                s => room * 65_536 / s,
+            };
+            let n = 1 + rnd() as usize % (len_m - 6).min(by_minor).max(1);
+            let forward = rnd() % 2 == 0;
+            let start = 2 + rnd() as usize % (len_m - 4 - n);
             let walk = Walk {
-                major0,
-                major_step: 1,
-                minor0: ((2 + rnd() as usize % (len_n - 6)) << 16) as i32,
-                minor_step: (rnd() % 2000) as i32 - 1000,
+                major0: if forward { start } else { start + n - 1 } as i32,
+                major_step: if forward { 1 } else { -1 },
+                minor0: (minor_start << 16) as i32,
+                minor_step,
                 stride_n: len_m,
                 n,
             };
