@@ -53,6 +53,8 @@ pub struct LocalMapper {
     problem: BaProblem,
     pairs: Vec<(u32, u32)>,
     has_ba: bool,
+    /// The map's correction epoch when the BA problem was copied out.
+    ba_epoch: u64,
     ba_poses: Vec<KeyFrameId>,
     ba_points: Vec<MapPointId>,
     obs_src: Vec<(MapPointId, KeyFrameId)>,
@@ -73,6 +75,7 @@ impl LocalMapper {
             problem: BaProblem::default(),
             pairs: Vec::new(),
             has_ba: false,
+            ba_epoch: 0,
             ba_poses: Vec::new(),
             ba_points: Vec::new(),
             obs_src: Vec::new(),
@@ -111,6 +114,7 @@ impl LocalMapper {
             self.config.triangulation_neighbours,
         );
         self.has_ba = map.n_keyframes() > 2 && self.build_local_ba(map, kf);
+        self.ba_epoch = map.correction_epoch();
         self.has_ba
     }
 
@@ -142,9 +146,10 @@ impl LocalMapper {
     }
 
     /// Phase 3 (map locked): write the BA result back (entities erased meanwhile are skipped),
-    /// drop outlier observations, cull redundant keyframes.
+    /// drop outlier observations, cull redundant keyframes. A result solved from poses that a
+    /// loop correction or full BA has since moved is dropped: writing it would undo that.
     pub fn finish(&mut self, map: &mut Map, kf: KeyFrameId) {
-        if self.has_ba {
+        if self.has_ba && self.ba_epoch == map.correction_epoch() {
             self.write_back(map);
             self.has_ba = false;
         }

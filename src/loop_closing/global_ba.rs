@@ -17,6 +17,8 @@ pub struct GlobalBaJob {
     keyframes: Vec<KeyFrameId>,
     points: Vec<MapPointId>,
     iterations: usize,
+    /// The map's correction epoch when the problem was copied.
+    epoch: u64,
 }
 
 impl GlobalBaJob {
@@ -77,6 +79,7 @@ impl GlobalBaJob {
             keyframes,
             points,
             iterations,
+            epoch: map.correction_epoch(),
         })
     }
 
@@ -92,8 +95,12 @@ impl GlobalBaJob {
     }
 
     /// Writes the solution back; keyframes and points made since [`prepare`](Self::prepare)
-    /// move with their parent / reference keyframe.
-    pub fn merge(self, map: &mut Map) {
+    /// move with their parent / reference keyframe. Returns false, writing nothing, when a
+    /// loop correction has moved the map since the copy (its solution would undo it).
+    pub fn merge(self, map: &mut Map) -> bool {
+        if map.correction_epoch() != self.epoch {
+            return false;
+        }
         let mut new_pose: HashMap<KeyFrameId, CameraFromWorld> = HashMap::new();
         let mut old_pose: HashMap<KeyFrameId, CameraFromWorld> = HashMap::new();
         for (i, &k) in self.keyframes.iter().enumerate() {
@@ -156,5 +163,7 @@ impl GlobalBaJob {
         for p in ids {
             map.update_point_geometry(p);
         }
+        map.note_correction();
+        true
     }
 }

@@ -71,6 +71,9 @@ pub struct Map {
     kf_pool: Vec<KeyFrame>,
     mp_pool: Vec<MapPoint>,
     next_serial: u64,
+    /// Counts corrections that move the whole map (loop corrections, merged full BAs), so a
+    /// local or full BA solved from a copy taken before one is not written over it.
+    corrections: u64,
     /// Scratch for covisibility counting (indexed by keyframe slot).
     counts: Vec<u32>,
     touched: Vec<usize>,
@@ -91,10 +94,21 @@ impl Map {
             kf_pool,
             mp_pool,
             next_serial: 0,
+            corrections: 0,
             counts: vec![0; config.max_keyframes],
             touched: Vec::with_capacity(config.max_keyframes),
             config,
         }
+    }
+
+    /// How many map-wide corrections have been applied (see [`Map::note_correction`]).
+    pub fn correction_epoch(&self) -> u64 {
+        self.corrections
+    }
+
+    /// Records a map-wide correction: BA results copied out before it are stale.
+    pub fn note_correction(&mut self) {
+        self.corrections += 1;
     }
 
     pub fn keyframe(&self, id: KeyFrameId) -> Option<&KeyFrame> {
@@ -236,6 +250,17 @@ impl Map {
         let Some(p) = self.points.get_mut(mp) else {
             return false;
         };
+        // One observation per keyframe: a keypoint that held this point before lets go of it
+        // (left pointing at it, it would dangle once the point is erased or replaced).
+        for &(_, i) in p
+            .observations
+            .iter()
+            .filter(|&&(f, i)| f == kf && i as usize != idx)
+        {
+            if let Some(slot) = k.points.get_mut(i as usize) {
+                *slot = None;
+            }
+        }
         p.observations.retain(|&(f, _)| f != kf);
         p.observations.push((kf, idx as u32));
         true

@@ -180,3 +180,23 @@ fn a_full_map_evicts_instead_of_growing() {
     assert!(m.keyframe(root).is_some(), "the root is never evicted");
     assert!(m.keyframe(prev).is_some(), "the newest keyframe stays");
 }
+
+#[test]
+fn a_point_moved_to_another_keypoint_leaves_no_dangling_slot() {
+    let mut m = Map::new(small());
+    let k0 = add_kf(&mut m, 100, 0.0);
+    let k1 = add_kf(&mut m, 100, 0.5);
+    let a = m.insert_point(Vector3::new(0.0, 0.0, 3.0), k0).unwrap();
+    m.add_observation(a, k0, 5);
+    m.add_observation(a, k1, 6);
+    // The same keyframe now sees `a` at another keypoint: the old slot lets go of it.
+    m.add_observation(a, k1, 9);
+    assert_eq!(m.keyframe(k1).unwrap().points[6], None);
+    assert_eq!(m.keyframe(k1).unwrap().points[9], Some(a));
+    assert_eq!(m.point(a).unwrap().observations.len(), 2);
+    // Erasing the point then leaves no keyframe pointing at it.
+    m.erase_point(a);
+    for k in [k0, k1] {
+        assert!(m.keyframe(k).unwrap().observed().all(|(_, p)| p != a));
+    }
+}
