@@ -3,6 +3,8 @@
 //! end is not connected to the start; the keyframes are then given a growing drift. The
 //! loop must be detected at the end, corrected, and the keyframe error must drop.
 
+mod common;
+
 use std::collections::HashMap;
 
 use nalgebra::UnitQuaternion;
@@ -211,4 +213,73 @@ fn global_ba_merge_carries_keyframes_made_meanwhile() {
     assert!((rel.translation.vector - offset.translation.vector).norm() < 1e-9);
     let p_cam_after = child.transform(&map.point(p).unwrap().position);
     assert!((p_cam_after - p_cam_before).norm() < 1e-9);
+}
+
+/// Desk and posters each end where they started: the loop must be closed (tracking joins the
+/// old map as soon as the camera is back, so it is found as a revisit or by bag of words),
+/// every loop must join keyframes that ground truth puts close together compared with the path
+/// between them (no false loop), and the keyframe error stays within 5 mm.
+#[test]
+fn desk_and_posters_close_their_loop_and_no_false_one() {
+    let Some(data) = common::shared_data() else {
+        return;
+    };
+    for seq in ["desk", "posters"] {
+        let dir = data.join("synthetic").join(seq);
+        let out = tempfile::tempdir().unwrap();
+        let (ok, _, err) = common::sdslam(&[
+            "run",
+            dir.to_str().unwrap(),
+            "--out",
+            out.path().to_str().unwrap(),
+            "--no-semidense",
+            "--no-plots",
+            "--quiet",
+        ]);
+        assert!(ok, "{seq}: {err}");
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.path().join("report.json")).unwrap())
+                .unwrap();
+        let loops = report["loop_closures"].as_array().unwrap();
+        eprintln!(
+            "{seq}: loops {loops:?}, keyframe ATE {}",
+            report["keyframe_ate_rmse_m"]
+        );
+        assert!(
+            !loops.is_empty(),
+            "{seq}: the loop at the end is not closed"
+        );
+        assert_eq!(
+            report["loops_closed"].as_u64().unwrap() as usize,
+            loops.len()
+        );
+        let gt = sdslam::io::read_tum_trajectory(&dir.join("groundtruth.txt")).unwrap();
+        let at = |t: f64| {
+            gt.iter()
+                .min_by(|a, b| (a.timestamp - t).abs().total_cmp(&(b.timestamp - t).abs()))
+                .unwrap()
+                .t_wc
+                .position()
+        };
+        for l in loops {
+            let (t1, t0) = (
+                l["timestamp"].as_f64().unwrap(),
+                l["loop_timestamp"].as_f64().unwrap(),
+            );
+            let travelled: f64 = gt
+                .windows(2)
+                .filter(|w| w[0].timestamp >= t0.min(t1) && w[1].timestamp <= t0.max(t1))
+                .map(|w| (w[1].t_wc.position() - w[0].t_wc.position()).norm())
+                .sum();
+            let apart = (at(t1) - at(t0)).norm();
+            assert!(
+                apart < 0.2 * travelled,
+                "{seq}: false loop {l}: {apart:.2} m apart after {travelled:.2} m"
+            );
+        }
+        // One loop per sequence: a second would mean the same place was joined twice.
+        assert_eq!(loops.len(), 1, "{seq}: {loops:?}");
+        let ate = report["keyframe_ate_rmse_m"].as_f64().unwrap();
+        assert!(ate <= 0.005, "{seq}: keyframe ATE {ate} m");
+    }
 }

@@ -363,6 +363,8 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     report.lost_episodes = system.tracker.lost_episodes;
     report.relocalisations = system.tracker.relocalisations;
     report.loops_closed = system.stats.loops_closed;
+    report.loops_closed_by_revisit = system.stats.loops_closed_by_revisit;
+    report.loop_closures.clone_from(&system.stats.loop_closures);
     report.final_ba_ms = system.stats.final_ba_ms;
     report.timing_ms.loop_closing = system.stats.loop_closing.percentiles();
     (report.keyframes, report.map_points) = system.map_size();

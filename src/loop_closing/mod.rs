@@ -5,6 +5,15 @@
 //! points (Sim3 RANSAC, then more matches by projection, >= 40); the keyframe and its
 //! neighbours are corrected by it, duplicated points fused, and the essential graph optimised
 //! as a Sim3 pose graph with the loop keyframe fixed, moving every keyframe and point.
+//!
+//! When the drift around a loop is small, tracking finds the old place's points by projection
+//! before any of this runs, and bag-of-words detection (which skips covisible keyframes) has
+//! nothing left to find. Such a loop shows as a covisibility edge between keyframes that are
+//! close in space but far apart along the path travelled between them ([`revisit`]); it gets
+//! the same loop edge, loop fusion and full BA, but no pose correction (tracking already made
+//! the new keyframe agree with the old place).
+
+mod revisit;
 
 mod global_ba;
 
@@ -35,6 +44,12 @@ pub struct LoopClosingConfig {
     pub min_matches: usize,
     /// Pose-graph iterations and covisibility weight of essential-graph edges.
     pub pose_graph_iterations: usize,
+    /// Revisits (loops tracking has already joined): the path travelled from the old keyframe
+    /// must be at least this many times the distance between the two camera centres...
+    pub revisit_path_ratio: f64,
+    /// ...and at least this many times the new keyframe's median scene depth (so that drift
+    /// can have built up along it).
+    pub revisit_min_path_depths: f64,
 }
 
 impl Default for LoopClosingConfig {
@@ -44,6 +59,8 @@ impl Default for LoopClosingConfig {
             min_keyframes_between_loops: 10,
             min_matches: 40,
             pose_graph_iterations: 20,
+            revisit_path_ratio: 5.0,
+            revisit_min_path_depths: 2.0,
         }
     }
 }
@@ -56,14 +73,39 @@ pub struct PlaceIndex {
     pub keys: HashMap<u32, KeyFrameId>,
 }
 
+/// How a loop was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LoopKind {
+    /// Bag-of-words detection, Sim3 and a pose correction.
+    Place,
+    /// Tracking had already joined the old place (see [`revisit`]): no pose correction.
+    Revisit,
+}
+
 /// What a closed loop did.
 #[derive(Clone, Debug)]
 pub struct LoopReport {
+    pub kind: LoopKind,
     pub keyframe: KeyFrameId,
     pub loop_keyframe: KeyFrameId,
     pub matches: usize,
     pub fused_points: usize,
 }
+
+/// One closed loop as the run report lists it: keyframes by timestamp, so it can be checked
+/// against ground truth.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct LoopRecord {
+    pub kind: &'static str,
+    /// The keyframe that closed the loop, and the old keyframe it was joined to.
+    pub timestamp: f64,
+    pub loop_timestamp: f64,
+    pub matches: usize,
+    pub fused_points: usize,
+}
+
+/// Loops listed per run at most (the counters go on).
+const MAX_LOOP_RECORDS: usize = 256;
 
 pub struct LoopCloser {
     pub config: LoopClosingConfig,
@@ -74,6 +116,10 @@ pub struct LoopCloser {
     groups: Vec<(HashSet<KeyFrameId>, usize)>,
     last_loop_serial: u64,
     pub loops_closed: usize,
+    /// Of `loops_closed`, those found as revisits.
+    pub revisits_closed: usize,
+    /// The loops closed, in order (the first [`MAX_LOOP_RECORDS`]).
+    pub history: Vec<LoopRecord>,
 }
 
 impl LoopCloser {
@@ -86,6 +132,8 @@ impl LoopCloser {
             groups: Vec::new(),
             last_loop_serial: 0,
             loops_closed: 0,
+            revisits_closed: 0,
+            history: Vec::new(),
         }
     }
 
@@ -97,25 +145,51 @@ impl LoopCloser {
         index: &PlaceIndex,
         kf: KeyFrameId,
     ) -> Option<LoopReport> {
-        let candidates = self.detect(map, index, kf)?;
-        for c in candidates {
-            if let Some(r) = self.close(map, kf, c) {
-                self.loops_closed += 1;
-                tracing::info!(matches = r.matches, fused = r.fused_points, "loop closed");
-                self.groups.clear();
-                self.last_loop_serial = map.keyframe(kf).map_or(0, |k| k.serial);
-                return Some(r);
-            }
+        // Detection runs on every keyframe: it carries the consistency groups forward.
+        let candidates = self.detect(map, index, kf).unwrap_or_default();
+        let mut report = candidates.into_iter().find_map(|c| self.close(map, kf, c));
+        if report.is_none() {
+            report = self
+                .detect_revisit(map, kf)
+                .and_then(|c| self.close_revisit(map, kf, c));
         }
-        None
+        let r = report?;
+        self.loops_closed += 1;
+        if r.kind == LoopKind::Revisit {
+            self.revisits_closed += 1;
+        }
+        if self.history.len() < MAX_LOOP_RECORDS {
+            let stamp = |k| map.keyframe(k).map_or(f64::NAN, |k| k.timestamp);
+            self.history.push(LoopRecord {
+                kind: match r.kind {
+                    LoopKind::Place => "place",
+                    LoopKind::Revisit => "revisit",
+                },
+                timestamp: stamp(r.keyframe),
+                loop_timestamp: stamp(r.loop_keyframe),
+                matches: r.matches,
+                fused_points: r.fused_points,
+            });
+        }
+        tracing::info!(kind = ?r.kind, matches = r.matches, fused = r.fused_points, "loop closed");
+        self.groups.clear();
+        self.last_loop_serial = map.keyframe(kf).map_or(0, |k| k.serial);
+        Some(r)
+    }
+
+    /// Whether `kf` may close a loop at all: enough keyframes, and not too soon after the last.
+    fn may_close(&self, map: &Map, kf: KeyFrameId) -> bool {
+        map.keyframe(kf).is_some_and(|k| {
+            map.n_keyframes() >= self.config.min_keyframes_between_loops
+                && k.serial
+                    >= self.last_loop_serial + self.config.min_keyframes_between_loops as u64
+        })
     }
 
     /// Candidates consistent over `covisibility_consistency` consecutive keyframes.
     fn detect(&mut self, map: &Map, index: &PlaceIndex, kf: KeyFrameId) -> Option<Vec<KeyFrameId>> {
         let k = map.keyframe(kf)?;
-        if map.n_keyframes() < self.config.min_keyframes_between_loops
-            || k.serial < self.last_loop_serial + self.config.min_keyframes_between_loops as u64
-        {
+        if !self.may_close(map, kf) {
             return None;
         }
         let key = k.serial as u32;
@@ -246,7 +320,32 @@ impl LoopCloser {
         let sol = sim3_ransac(&m, &self.k, &self.k, &Sim3RansacConfig::default())?;
         // S_cw of the current keyframe as the loop side sees it: S_12 * T_2w.
         let s_cw = sim3_compose(&sol.s12, &se3_to_sim3(&t2.0));
-        // More matches: the loop keyframe's neighbourhood projected with S_cw.
+        let mut matched: Vec<Option<MapPointId>> = vec![None; k1.keypoints.len()];
+        for (m_i, &(i, _, _, mp2)) in pairs.iter().enumerate() {
+            if sol.inliers[m_i] {
+                matched[i] = Some(mp2);
+            }
+        }
+        let n_matches = self.match_loop_group(map, kf, c, &s_cw, &mut matched);
+        if n_matches < self.config.min_matches {
+            return None;
+        }
+        Some(self.correct(map, kf, c, &s_cw, &matched, n_matches))
+    }
+
+    /// More matches for `kf`'s keypoints (those not yet in `matched`): the points of the loop
+    /// keyframe `c` and its covisible neighbours, projected with `s_cw`. Returns the matches.
+    fn match_loop_group(
+        &self,
+        map: &Map,
+        kf: KeyFrameId,
+        c: KeyFrameId,
+        s_cw: &Sim3,
+        matched: &mut [Option<MapPointId>],
+    ) -> usize {
+        let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(c)) else {
+            return 0;
+        };
         let mut loop_points: Vec<MapPointId> = Vec::new();
         let mut seen = HashSet::new();
         let group: Vec<KeyFrameId> = std::iter::once(c)
@@ -261,13 +360,13 @@ impl LoopCloser {
                 }
             }
         }
-        let mut matched: Vec<Option<MapPointId>> = vec![None; k1.keypoints.len()];
-        for (m_i, &(i, _, _, mp2)) in pairs.iter().enumerate() {
-            if sol.inliers[m_i] {
-                matched[i] = Some(mp2);
-            }
-        }
-        let already: HashSet<MapPointId> = matched.iter().flatten().copied().collect();
+        // Points `kf` observes already are matched (or are its own): never a second keypoint.
+        let already: HashSet<MapPointId> = matched
+            .iter()
+            .flatten()
+            .copied()
+            .chain(k1.observed().map(|(_, p)| p))
+            .collect();
         let mut area = Vec::new();
         for &p in &loop_points {
             if already.contains(&p) {
@@ -312,11 +411,7 @@ impl LoopCloser {
                 matched[best.1] = Some(p);
             }
         }
-        let n_matches = matched.iter().filter(|m| m.is_some()).count();
-        if n_matches < self.config.min_matches {
-            return None;
-        }
-        Some(self.correct(map, kf, c, &s_cw, &matched, n_matches))
+        matched.iter().filter(|m| m.is_some()).count()
     }
 
     /// Corrects the current keyframe's neighbourhood with `s_cw`, fuses the loop matches, adds
@@ -380,40 +475,11 @@ impl LoopCloser {
         for &p in moved.keys() {
             map.update_point_geometry(p);
         }
-        // Loop fusion: the loop side's points replace the current side's duplicates.
-        let mut fused = 0;
-        for (i, m) in matched.iter().enumerate() {
-            let Some(loop_p) = *m else { continue };
-            if map.point(loop_p).is_none() {
-                continue;
-            }
-            match map.keyframe(kf).and_then(|k| k.points[i]) {
-                Some(cur) if cur != loop_p => {
-                    map.replace_point(cur, loop_p);
-                    fused += 1;
-                }
-                Some(_) => {}
-                None => {
-                    map.add_observation(loop_p, kf, i);
-                    map.update_point_geometry(loop_p);
-                }
-            }
-        }
-        if let Some(k) = map.keyframe_mut(kf) {
-            if !k.loop_edges.contains(&loop_kf) {
-                k.loop_edges.push(loop_kf);
-            }
-        }
-        if let Some(k) = map.keyframe_mut(loop_kf) {
-            if !k.loop_edges.contains(&kf) {
-                k.loop_edges.push(kf);
-            }
-        }
-        for &n in neighbours.iter().chain([kf, loop_kf].iter()) {
-            map.update_connections(n);
-        }
+        let fused = fuse_and_link(map, kf, loop_kf, matched);
         self.optimize_essential_graph(map, &before, &corrected, &moved, loop_kf);
+        map.note_correction();
         LoopReport {
+            kind: LoopKind::Place,
             keyframe: kf,
             loop_keyframe: loop_kf,
             matches: n_matches,
@@ -505,6 +571,53 @@ impl LoopCloser {
             map.update_point_geometry(p);
         }
     }
+}
+
+/// Loop fusion: the loop side's points replace the current side's duplicates in `kf` (and
+/// are added where `kf` had none); then the loop edge, and the connections of `kf`, its
+/// neighbours and the loop keyframe. Returns how many points were fused.
+fn fuse_and_link(
+    map: &mut Map,
+    kf: KeyFrameId,
+    loop_kf: KeyFrameId,
+    matched: &[Option<MapPointId>],
+) -> usize {
+    let neighbours: Vec<KeyFrameId> = map
+        .keyframe(kf)
+        .map(|k| k.covisibles.iter().map(|&(x, _)| x).collect())
+        .unwrap_or_default();
+    let mut fused = 0;
+    for (i, m) in matched.iter().enumerate() {
+        let Some(loop_p) = *m else { continue };
+        if map.point(loop_p).is_none() {
+            continue;
+        }
+        match map.keyframe(kf).and_then(|k| k.points[i]) {
+            Some(cur) if cur != loop_p => {
+                map.replace_point(cur, loop_p);
+                fused += 1;
+            }
+            Some(_) => {}
+            None => {
+                map.add_observation(loop_p, kf, i);
+                map.update_point_geometry(loop_p);
+            }
+        }
+    }
+    if let Some(k) = map.keyframe_mut(kf) {
+        if !k.loop_edges.contains(&loop_kf) {
+            k.loop_edges.push(loop_kf);
+        }
+    }
+    if let Some(k) = map.keyframe_mut(loop_kf) {
+        if !k.loop_edges.contains(&kf) {
+            k.loop_edges.push(kf);
+        }
+    }
+    for &n in neighbours.iter().chain([kf, loop_kf].iter()) {
+        map.update_connections(n);
+    }
+    fused
 }
 
 fn se3_to_sim3(t: &Se3) -> Sim3 {

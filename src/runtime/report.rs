@@ -41,6 +41,11 @@ pub struct Report {
     pub keyframes: usize,
     pub map_points: usize,
     pub loops_closed: usize,
+    /// Of `loops_closed`, loops tracking had already joined when the camera came back (small
+    /// drift): found as revisits, fused and followed by a full BA, without a pose correction.
+    pub loops_closed_by_revisit: usize,
+    /// Each loop: kind (`place` or `revisit`), the two keyframes' timestamps, matches, fused.
+    pub loop_closures: Vec<crate::loop_closing::LoopRecord>,
     pub relocalisations: usize,
     /// With `--drop START:COUNT`: frames withheld, and how many frames after the blackout
     /// tracking took to be Ok again (relocalisation), if it did.

@@ -61,6 +61,10 @@ pub struct SystemStats {
     /// Detection + correction time of each closed loop.
     pub loop_closing: StageTimer,
     pub loops_closed: usize,
+    /// Of `loops_closed`, those tracking had already joined (see `loop_closing::revisit`).
+    pub loops_closed_by_revisit: usize,
+    /// Each loop closed (kind, keyframe timestamps, matches).
+    pub loop_closures: Vec<crate::loop_closing::LoopRecord>,
     /// Duration of the final full BA (0 when off or not run).
     pub final_ba_ms: f64,
     /// Making a keyframe on the tracking thread (map insertion, observations, database).
@@ -72,13 +76,25 @@ pub struct SystemStats {
 enum Mapping {
     /// On the tracking thread, right after the keyframe is made (deterministic mode).
     Inline(Box<(LocalMapper, LoopCloser)>),
-    /// On its own thread, fed by a bounded channel; never holds the map during BA.
+    /// On its own thread, fed by a bounded channel; never holds the map during BA. Loop
+    /// closing runs on a third thread fed by the mapping thread (`None`: it could not be
+    /// started, and the mapping thread closes loops itself).
     Thread {
         tx: Option<Sender<KeyFrameId>>,
-        /// Returns (local-mapping timer, loop-closing timer, loops closed).
-        handle: Option<JoinHandle<(StageTimer, StageTimer, usize)>>,
+        /// Returns the local-mapping timer (and the loop figures when it closed loops itself).
+        handle: Option<JoinHandle<(StageTimer, LoopStats)>>,
+        closer: Option<JoinHandle<LoopStats>>,
         idle: Arc<AtomicBool>,
     },
+}
+
+/// What loop closing did in a run.
+#[derive(Default)]
+struct LoopStats {
+    timer: Option<StageTimer>,
+    loops_closed: usize,
+    revisits_closed: usize,
+    history: Vec<crate::loop_closing::LoopRecord>,
 }
 
 /// Locks the map; a panicked mapping thread must not take tracking down with it.
@@ -214,6 +230,8 @@ impl System {
                 tracking: StageTimer::with_capacity(expected_frames.max(16)),
                 loop_closing: StageTimer::with_capacity(64),
                 loops_closed: 0,
+                loops_closed_by_revisit: 0,
+                loop_closures: Vec::new(),
                 final_ba_ms: 0.0,
                 keyframe_insertion: StageTimer::with_capacity(expected_frames.max(16)),
                 local_mapping: StageTimer::with_capacity(expected_frames.max(16)),
@@ -246,18 +264,37 @@ impl System {
     /// map and everything else are still usable).
     pub fn finish(&mut self) -> bool {
         let mut ok = true;
-        if let Mapping::Thread { tx, handle, idle } = &mut self.mapping {
+        if let Mapping::Thread {
+            tx,
+            handle,
+            closer,
+            idle,
+        } = &mut self.mapping
+        {
+            // The mapping thread drains its queue and hangs up on the loop-closing thread,
+            // which then drains its own.
             tx.take();
+            let mut loops = LoopStats::default();
             ok = match handle.take().map(|h| h.join()) {
-                Some(Ok((timer, loops, closed))) => {
+                Some(Ok((timer, l))) => {
                     self.stats.local_mapping = timer;
-                    self.stats.loop_closing = loops;
-                    self.stats.loops_closed = closed;
+                    loops = l;
                     true
                 }
                 Some(Err(_)) => false,
                 None => true,
             };
+            match closer.take().map(|h| h.join()) {
+                Some(Ok(l)) => loops = l,
+                Some(Err(_)) => ok = false,
+                None => {}
+            }
+            if let Some(t) = loops.timer {
+                self.stats.loop_closing = t;
+            }
+            self.stats.loops_closed = loops.loops_closed;
+            self.stats.loops_closed_by_revisit = loops.revisits_closed;
+            self.stats.loop_closures = loops.history;
             idle.store(true, Ordering::Release);
         }
         if self.backfill.active() {
@@ -380,12 +417,12 @@ impl System {
     /// The worker thread that has died (panicked) during the run, if any: the caller should
     /// stop feeding frames, call [`finish`](Self::finish) and write what it has.
     pub fn failed_thread(&self) -> Option<&'static str> {
-        if let Mapping::Thread {
-            handle: Some(h), ..
-        } = &self.mapping
-        {
-            if h.is_finished() {
+        if let Mapping::Thread { handle, closer, .. } = &self.mapping {
+            if handle.as_ref().is_some_and(|h| h.is_finished()) {
                 return Some("local-mapping");
+            }
+            if closer.as_ref().is_some_and(|h| h.is_finished()) {
+                return Some("loop-closing");
             }
         }
         self.semidense.has_failed().then_some("semi-dense")
@@ -593,6 +630,10 @@ impl System {
                     }
                 }
                 self.stats.loops_closed = closer.loops_closed;
+                self.stats.loops_closed_by_revisit = closer.revisits_closed;
+                if closed {
+                    self.stats.loop_closures.clone_from(&closer.history);
+                }
             }
             Mapping::Thread { tx, idle, .. } => {
                 idle.store(false, Ordering::Release);

@@ -29,10 +29,11 @@ pub struct KeyframeDepth {
     pub neighbours: heapless::Vec<KeyFrameId, MAX_NEIGHBOURS>,
     start: usize,
     len: usize,
-    /// Map points seen by the keyframe with their inverse depths at reconstruction: the
-    /// anchors of its depth scale. A Sim3 loop correction or global BA rescales the map around
-    /// a keyframe; the ratio of then/now inverse depths of these points carries the depths along.
-    anchors: heapless::Vec<(MapPointId, f32), MAX_ANCHORS>,
+    /// Map points seen by the keyframe with their camera-frame positions at reconstruction:
+    /// the anchors of its depth scale. A Sim3 loop correction or global BA rescales the map
+    /// around a keyframe; the ratio of then/now inverse depths of these points carries the
+    /// depths along, and once the keyframe is culled their Sim3 gives its pose.
+    anchors: heapless::Vec<(MapPointId, [f32; 3]), MAX_ANCHORS>,
     /// Depth scale when the pose was last read (the median then/now inverse-depth ratio of its anchor points).
     pub scale: f32,
     /// The inter-keyframe check has run.
@@ -48,11 +49,11 @@ pub const MAX_ANCHORS: usize = 48;
 /// scale): the median ratio over its anchor points still in the map, 1 when none is left.
 fn anchor_scale(map: &Map, e: &KeyframeDepth, scratch: &mut Vec<f32>) -> f32 {
     scratch.clear();
-    for (mp, rho_then) in &e.anchors {
+    for (mp, x_then) in &e.anchors {
         if let Some(p) = map.point(*mp) {
             let z = e.t_cw.transform(&p.position).z;
             if z > 0.0 && scratch.len() < scratch.capacity() {
-                scratch.push((*rho_then as f64 * z) as f32);
+                scratch.push((z / x_then[2] as f64) as f32);
             }
         }
     }
@@ -66,6 +67,29 @@ fn anchor_scale(map: &Map, e: &KeyframeDepth, scratch: &mut Vec<f32>) -> f32 {
     } else {
         1.0
     }
+}
+
+/// Pose and depth scale of a keyframe that has left the map (culled after reconstruction):
+/// the similarity taking its anchors from its camera frame then to where the map has them now
+/// (so its cloud follows loop corrections and BA). `None` with fewer than 3 anchors left.
+fn pose_from_anchors(map: &Map, e: &KeyframeDepth) -> Option<(CameraFromWorld, f32)> {
+    let mut then = [nalgebra::Vector3::zeros(); MAX_ANCHORS];
+    let mut now = [nalgebra::Vector3::zeros(); MAX_ANCHORS];
+    let mut n = 0;
+    for (mp, x) in &e.anchors {
+        if let Some(p) = map.point(*mp) {
+            then[n] = nalgebra::Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64);
+            now[n] = p.position;
+            n += 1;
+        }
+    }
+    // x_w = s R x_c + t: the camera pose is [R | t], its depths are scaled by s.
+    let s = crate::geometry::umeyama(&then[..n], &now[..n], true)?;
+    if !(s.scale.is_finite() && s.scale > 0.0) {
+        return None;
+    }
+    let t_wc = crate::geometry::Se3::from_parts(s.translation.into(), s.rotation);
+    Some((CameraFromWorld(t_wc.inverse()), s.scale as f32))
 }
 
 /// A pixel of the arena: the intra-checked estimate (what neighbours are checked against),
@@ -318,7 +342,7 @@ impl SemiDenseMapper {
         bool,
         heapless::Vec<Neighbour, MAX_NEIGHBOURS>,
         (f64, f64),
-        heapless::Vec<(MapPointId, f32), MAX_ANCHORS>,
+        heapless::Vec<(MapPointId, [f32; 3]), MAX_ANCHORS>,
     )> {
         let map = map.lock().unwrap_or_else(|e| e.into_inner());
         let k = map.keyframe(kf)?;
@@ -338,7 +362,8 @@ impl SemiDenseMapper {
                     self.scratch_f32.push((1.0 / z) as f32);
                 }
                 if z > 0.0 && n % stride == 0 {
-                    let _ = anchors.push((mp, (1.0 / z) as f32));
+                    let x = k.t_cw.transform(&p.position);
+                    let _ = anchors.push((mp, [x.x as f32, x.y as f32, x.z as f32]));
                 }
             }
         }
@@ -430,6 +455,8 @@ impl SemiDenseMapper {
             if let Some(k) = map.keyframe(d.keyframe) {
                 d.t_cw = k.t_cw;
                 d.scale = anchor_scale(map, d, &mut scratch);
+            } else if let Some((t_cw, scale)) = pose_from_anchors(map, d) {
+                (d.t_cw, d.scale) = (t_cw, scale);
             }
         };
         refresh(&mut self.entries[e]);
@@ -497,7 +524,8 @@ impl SemiDenseMapper {
                     };
                     (kf.t_cw, anchor_scale(map, &now, &mut scratch) as f64)
                 }
-                None => (e.t_cw, e.scale as f64),
+                None => pose_from_anchors(map, e)
+                    .map_or((e.t_cw, e.scale as f64), |(t, s)| (t, s as f64)),
             };
             let t_wc = t_cw.inverse();
             for p in self.pixels(e).filter(|p| p.rho > 0.0) {

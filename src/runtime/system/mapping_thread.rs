@@ -1,9 +1,12 @@
-//! The local-mapping thread (local mapping, then loop closing, per keyframe).
+//! The local-mapping thread and the loop-closing thread it feeds (ORB-SLAM's thread model):
+//! each keyframe is mapped, then handed over for loop detection, so a loop correction never
+//! meets a half-mapped keyframe, and local mapping goes on while a loop is being closed.
 
 use super::*;
 
 /// Starts the local-mapping thread: per keyframe, prepare under the lock, BA without it, write
-/// back under the lock. Exits when the channel closes (after draining it).
+/// back under the lock, then pass the keyframe to loop closing. Exits when the channel closes
+/// (after draining it), hanging up on the loop-closing thread.
 pub(super) fn spawn_mapper(
     camera: PinholeRadtan,
     scales: &[f64],
@@ -14,18 +17,31 @@ pub(super) fn spawn_mapper(
     global_ba_after_loop: bool,
 ) -> Mapping {
     let mut mapper = LocalMapper::new(camera, scales);
-    let mut closer = LoopCloser::new(camera, scales);
-    let scales_owned = scales.to_vec();
     let (tx, rx) = bounded::<KeyFrameId>(8);
+    let (loop_tx, closer) = match spawn_loop_closer(
+        camera,
+        scales,
+        Arc::clone(&map),
+        cpus.clone(),
+        Arc::clone(&places),
+        global_ba_after_loop,
+    ) {
+        Some((t, h)) => (Some(t), Some(h)),
+        None => (None, None),
+    };
+    // Without a loop-closing thread, the mapping thread closes loops itself.
+    let mut own = loop_tx
+        .is_none()
+        .then(|| LoopWorker::new(camera, scales, global_ba_after_loop));
     let idle = Arc::new(AtomicBool::new(true));
     let idle_t = Arc::clone(&idle);
+    let map_t = Arc::clone(&map);
     let handle = std::thread::Builder::new()
         .name("local-mapping".into())
         .spawn(move || {
+            let map = map_t;
             crate::runtime::pin_current_thread(&cpus);
             let mut timer = StageTimer::with_capacity(expected.max(16));
-            let mut loop_timer = StageTimer::with_capacity(64);
-            let mut gba: Option<std::thread::JoinHandle<()>> = None;
             let mut n = 0;
             while let Ok(kf) = rx.recv() {
                 n += 1;
@@ -38,46 +54,26 @@ pub(super) fn spawn_mapper(
                 }
                 mapper.finish(&mut lock(&map), kf);
                 timer.record(t.elapsed());
-                let closed = {
-                    let mut m = lock(&map);
-                    let p = places.lock().unwrap_or_else(|e| e.into_inner());
-                    let tl = Instant::now();
-                    let closed = closer.process(&mut m, &p, kf).is_some();
-                    if closed {
-                        loop_timer.record(tl.elapsed());
+                match (&loop_tx, &mut own) {
+                    // Blocks only while 8 keyframes wait for loop detection (a correction
+                    // takes tens of ms); a dead loop thread is reported by `failed_thread`.
+                    (Some(t), _) => {
+                        let _ = t.send(kf);
                     }
-                    closed
-                };
-                if closed && global_ba_after_loop {
-                    // A full BA on its own thread: copied under a short lock, solved without
-                    // it, merged under a short lock; tracking and mapping go on meanwhile.
-                    if let Some(h) = gba.take() {
-                        let _ = h.join();
-                    }
-                    let (map2, scales2) = (Arc::clone(&map), scales_owned.clone());
-                    gba = std::thread::Builder::new()
-                        .name("global-ba".into())
-                        .spawn(move || {
-                            let job = GlobalBaJob::prepare(&lock(&map2), &camera, &scales2, 10);
-                            if let Some(mut job) = job {
-                                job.solve();
-                                job.merge(&mut lock(&map2));
-                            }
-                        })
-                        .ok();
+                    (None, Some(w)) => w.process(&map, &places, kf),
+                    (None, None) => {}
                 }
                 idle_t.store(rx.is_empty(), Ordering::Release);
             }
-            if let Some(h) = gba.take() {
-                let _ = h.join();
-            }
-            (timer, loop_timer, closer.loops_closed)
+            drop(loop_tx);
+            (timer, own.map(LoopWorker::finish).unwrap_or_default())
         })
         .ok();
     match handle {
         Some(h) => Mapping::Thread {
             tx: Some(tx),
             handle: Some(h),
+            closer,
             idle,
         },
         // No thread could be started: fall back to inline mapping (still correct).
@@ -85,5 +81,100 @@ pub(super) fn spawn_mapper(
             LocalMapper::new(camera, scales),
             LoopCloser::new(camera, scales),
         ))),
+    }
+}
+
+/// The loop-closing thread: detection (and correction) per mapped keyframe, then, after a
+/// loop, a full BA on a background thread of its own.
+fn spawn_loop_closer(
+    camera: PinholeRadtan,
+    scales: &[f64],
+    map: Arc<Mutex<Map>>,
+    cpus: Vec<usize>,
+    places: Arc<Mutex<PlaceIndex>>,
+    global_ba_after_loop: bool,
+) -> Option<(Sender<KeyFrameId>, JoinHandle<LoopStats>)> {
+    let mut worker = LoopWorker::new(camera, scales, global_ba_after_loop);
+    let (tx, rx) = bounded::<KeyFrameId>(8);
+    let handle = std::thread::Builder::new()
+        .name("loop-closing".into())
+        .spawn(move || {
+            crate::runtime::pin_current_thread(&cpus);
+            let mut n = 0;
+            while let Ok(kf) = rx.recv() {
+                n += 1;
+                crate::runtime::faults::maybe_panic("panic:loop_closing", n);
+                worker.process(&map, &places, kf);
+            }
+            worker.finish()
+        })
+        .ok()?;
+    Some((tx, handle))
+}
+
+/// Loop detection and correction for one keyframe at a time, and the full BA after a loop.
+struct LoopWorker {
+    closer: LoopCloser,
+    camera: PinholeRadtan,
+    scales: Vec<f64>,
+    global_ba_after_loop: bool,
+    timer: StageTimer,
+    gba: Option<JoinHandle<()>>,
+}
+
+impl LoopWorker {
+    fn new(camera: PinholeRadtan, scales: &[f64], global_ba_after_loop: bool) -> Self {
+        LoopWorker {
+            closer: LoopCloser::new(camera, scales),
+            camera,
+            scales: scales.to_vec(),
+            global_ba_after_loop,
+            timer: StageTimer::with_capacity(64),
+            gba: None,
+        }
+    }
+
+    fn process(&mut self, map: &Arc<Mutex<Map>>, places: &Mutex<PlaceIndex>, kf: KeyFrameId) {
+        let closed = {
+            let mut m = lock(map);
+            let p = places.lock().unwrap_or_else(|e| e.into_inner());
+            let tl = Instant::now();
+            let closed = self.closer.process(&mut m, &p, kf).is_some();
+            if closed {
+                self.timer.record(tl.elapsed());
+            }
+            closed
+        };
+        if closed && self.global_ba_after_loop {
+            // A full BA on its own thread: copied under a short lock, solved without it,
+            // merged under a short lock (dropped if another loop moved the map meanwhile);
+            // tracking and mapping go on.
+            if let Some(h) = self.gba.take() {
+                let _ = h.join();
+            }
+            let (map2, scales2, camera) = (Arc::clone(map), self.scales.clone(), self.camera);
+            self.gba = std::thread::Builder::new()
+                .name("global-ba".into())
+                .spawn(move || {
+                    let job = GlobalBaJob::prepare(&lock(&map2), &camera, &scales2, 10);
+                    if let Some(mut job) = job {
+                        job.solve();
+                        job.merge(&mut lock(&map2));
+                    }
+                })
+                .ok();
+        }
+    }
+
+    fn finish(mut self) -> LoopStats {
+        if let Some(h) = self.gba.take() {
+            let _ = h.join();
+        }
+        LoopStats {
+            timer: Some(self.timer),
+            loops_closed: self.closer.loops_closed,
+            revisits_closed: self.closer.revisits_closed,
+            history: self.closer.history,
+        }
     }
 }
