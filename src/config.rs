@@ -79,6 +79,13 @@ pub struct SemiDenseConfig {
     pub consensus_window: bool,
     /// Nice value added to the semi-dense threads (Linux), so tracking always wins a core.
     pub nice: i32,
+    /// Run the semi-dense threads in Linux's SCHED_IDLE class (only on otherwise idle CPUs;
+    /// a waking tracking thread preempts them at once).
+    pub sched_idle: bool,
+    /// Semi-dense workers wait between image rows while a frame is being tracked (the 2 vCPUs
+    /// share execution units: a busy sibling slows tracking ~1.8x). Semi-dense mapping lags
+    /// instead (reported as `semidense_finish_s`); tracking keeps its deadline.
+    pub yield_to_tracking: bool,
     /// CPUs for the semi-dense thread and its workers; empty = no pinning.
     pub cpus: Vec<usize>,
     /// Capacity of the stored semi-dense pixels over the run (a full store skips keyframes,
@@ -102,6 +109,8 @@ impl Default for SemiDenseConfig {
             max_similarity_error: 5.99,
             consensus_window: false,
             nice: 10,
+            sched_idle: true,
+            yield_to_tracking: true,
             cpus: Vec::new(),
             min_baseline_ratio: 0.05,
             max_points: 8_000_000,

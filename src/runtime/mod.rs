@@ -7,7 +7,10 @@ mod semidense_worker;
 mod system;
 mod timing;
 
-pub use priority::{lower_current_thread_priority, pin_current_thread};
+pub use priority::{
+    lower_current_thread_priority, pin_current_thread, set_current_thread_idle, ForegroundBusy,
+    ForegroundGate,
+};
 pub use report::{Report, TimingReport};
 pub use system::{FrameResult, System, SystemStats};
 pub use timing::{Percentiles, StageTimer};

@@ -40,6 +40,7 @@ impl SemiDenseWorker {
         mut mapper: Box<SemiDenseMapper>,
         map: Arc<Mutex<Map>>,
         nice: i32,
+        idle: bool,
         cpus: Vec<usize>,
     ) -> Self {
         let (tx, rx) = bounded::<Message>(QUEUE_CAPACITY);
@@ -47,6 +48,9 @@ impl SemiDenseWorker {
             .name("semidense".into())
             .spawn(move || {
                 super::lower_current_thread_priority(nice);
+                if idle {
+                    super::set_current_thread_idle();
+                }
                 super::pin_current_thread(&cpus);
                 let mut n = 0;
                 while let Ok(m) = rx.recv() {

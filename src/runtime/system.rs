@@ -18,6 +18,7 @@ use crate::local_mapping::{median_depth, LocalMapper};
 use crate::loop_closing::{GlobalBaJob, LoopCloser, PlaceIndex};
 use crate::map::persist::{MapFileError, MapOrigin, MapSnapshot};
 use crate::map::{KeyFrameId, Map, MapConfig};
+use crate::runtime::ForegroundGate;
 
 use crate::place_recognition::{default_vocabulary, KeyFrameDatabase, Vocabulary};
 use crate::runtime::semidense_worker::SemiDenseWorker;
@@ -114,6 +115,8 @@ pub struct System {
     fresh_keyframes: heapless::Vec<KeyFrameId, 4>,
     /// Run a full BA when the run finishes (`[map] final_global_ba`).
     final_ba: bool,
+    /// Held while a frame is processed: semi-dense workers wait meanwhile.
+    gate: ForegroundGate,
     global_ba_after_loop: bool,
     finished: bool,
     /// Place recognition for relocalisation: the vocabulary (the shipped default unless one is
@@ -177,6 +180,7 @@ impl System {
                 LoopCloser::new(camera, &scales),
             )))
         };
+        let gate = ForegroundGate::default();
         let semidense = if config.semidense.enabled {
             let k = Intrinsics {
                 fx: camera.fx,
@@ -184,7 +188,7 @@ impl System {
                 cx: camera.cx,
                 cy: camera.cy,
             };
-            let mapper = Box::new(SemiDenseMapper::new(
+            let mut mapper = Box::new(SemiDenseMapper::new(
                 k,
                 w,
                 h,
@@ -193,10 +197,14 @@ impl System {
                 max_features,
             ));
             if threaded {
+                if config.semidense.yield_to_tracking {
+                    mapper.set_foreground_gate(gate.clone());
+                }
                 SemiDenseWorker::spawn(
                     mapper,
                     Arc::clone(&map),
                     config.semidense.nice,
+                    config.semidense.sched_idle,
                     config.semidense.cpus.clone(),
                 )
             } else {
@@ -213,6 +221,7 @@ impl System {
             semidense,
             fresh_keyframes: heapless::Vec::new(),
             final_ba: config.map.final_global_ba,
+            gate,
             localize_only: false,
             global_ba_after_loop: config.map.global_ba_after_loop,
             finished: false,
@@ -451,6 +460,8 @@ impl System {
         index: u64,
     ) -> FrameResult {
         let t0 = Instant::now();
+        let gate = self.gate.clone();
+        let _busy = gate.busy();
         self.stats.frames += 1;
         let f = &mut self.frame;
         f.index = index;

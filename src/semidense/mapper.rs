@@ -154,6 +154,11 @@ pub struct SemiDenseMapper {
 impl SemiDenseMapper {
     /// Reserves everything for `width` x `height` keyframes, `max_keyframes` reconstructed
     /// keyframes and `max_points` stored pixels.
+    /// Online: the per-pixel work steps aside while tracking works on a frame.
+    pub fn set_foreground_gate(&mut self, gate: crate::runtime::ForegroundGate) {
+        self.reconstructor.set_foreground_gate(gate);
+    }
+
     pub fn new(
         k: Intrinsics,
         width: usize,

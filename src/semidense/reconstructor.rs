@@ -57,6 +57,8 @@ pub struct KeyframeReconstructor {
     rho: Vec<f32>,
     s2: Vec<f32>,
     pool: Option<rayon::ThreadPool>,
+    /// Set online: rows wait while tracking works on a frame.
+    gate: Option<crate::runtime::ForegroundGate>,
 }
 
 impl KeyframeReconstructor {
@@ -69,9 +71,13 @@ impl KeyframeReconstructor {
                     .num_threads(config.threads)
                     .thread_name(|i| format!("semidense-{i}"))
                     .start_handler({
-                        let (nice, cpus) = (config.nice, config.cpus.clone());
+                        let (nice, idle, cpus) =
+                            (config.nice, config.sched_idle, config.cpus.clone());
                         move |_| {
                             crate::runtime::lower_current_thread_priority(nice);
+                            if idle {
+                                crate::runtime::set_current_thread_idle();
+                            }
                             crate::runtime::pin_current_thread(&cpus);
                         }
                     })
@@ -103,6 +109,7 @@ impl KeyframeReconstructor {
             rho: vec![0.0; width * height],
             s2: vec![0.0; width * height],
             pool,
+            gate: None,
         }
     }
 
@@ -191,6 +198,11 @@ impl KeyframeReconstructor {
         self.neighbours.len()
     }
 
+    /// Rows wait (between rows) while `gate` says tracking is busy.
+    pub fn set_foreground_gate(&mut self, gate: crate::runtime::ForegroundGate) {
+        self.gate = Some(gate);
+    }
+
     /// Reconstructs the reference keyframe for inverse depths in `rho_range`; the result is
     /// read with [`export`](Self::export).
     pub fn reconstruct(&mut self, rho_range: (f64, f64)) -> StageTimes {
@@ -218,6 +230,7 @@ impl KeyframeReconstructor {
         };
         run_rows(
             self.pool.as_ref(),
+            self.gate.as_ref(),
             &mut self.raw_rho,
             &mut self.raw_s2,
             w,
@@ -241,6 +254,7 @@ impl KeyframeReconstructor {
         };
         run_rows(
             self.pool.as_ref(),
+            self.gate.as_ref(),
             &mut self.rho,
             &mut self.s2,
             w,
@@ -275,17 +289,30 @@ impl KeyframeReconstructor {
     }
 }
 
-/// Runs `f` on every (row index, (row of a, row of b)), in parallel when a pool is given.
-fn run_rows<F>(pool: Option<&rayon::ThreadPool>, a: &mut [f32], b: &mut [f32], w: usize, f: F)
-where
+/// Runs `f` on every (row index, (row of a, row of b)), in parallel when a pool is given;
+/// each row first waits for `gate` (tracking busy).
+fn run_rows<F>(
+    pool: Option<&rayon::ThreadPool>,
+    gate: Option<&crate::runtime::ForegroundGate>,
+    a: &mut [f32],
+    b: &mut [f32],
+    w: usize,
+    f: F,
+) where
     F: Fn((usize, (&mut [f32], &mut [f32]))) + Sync + Send,
 {
+    let f = |row| {
+        if let Some(g) = gate {
+            g.wait();
+        }
+        f(row)
+    };
     match pool {
         Some(p) => p.install(|| {
             a.par_chunks_mut(w)
                 .zip(b.par_chunks_mut(w))
                 .enumerate()
-                .for_each(&f)
+                .for_each(f)
         }),
         None => a.chunks_mut(w).zip(b.chunks_mut(w)).enumerate().for_each(f),
     }
