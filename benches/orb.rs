@@ -1,4 +1,5 @@
-//! ORB extraction and brute-force matching on 640x480 frames of the built-in sequence, one thread.
+//! ORB extraction (one thread, and two lanes) and brute-force matching on 640x480 frames of
+//! the built-in sequence.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use sdslam::camera::Frame;
@@ -13,10 +14,19 @@ fn orb(c: &mut Criterion) {
     seq.render_frame(30, &mut f);
     let mut g = Frame::new(640, 480);
     seq.render_frame(33, &mut g);
-    let mut ex = OrbExtractor::new(640, 480, &OrbConfig::default());
+    let one = OrbConfig {
+        threads: 1,
+        ..OrbConfig::default()
+    };
+    let mut ex = OrbExtractor::new(640, 480, &one);
     let mut out = Features::with_capacity(1000);
     c.bench_function("orb_extract_640x480_1000", |b| {
         b.iter(|| ex.extract(&f.gray, None, &mut out))
+    });
+    // Two lanes (the tracking default, `[orb] threads = 2`).
+    let mut ex2 = OrbExtractor::new(640, 480, &OrbConfig::default());
+    c.bench_function("orb_extract_640x480_1000_two_threads", |b| {
+        b.iter(|| ex2.extract(&f.gray, None, &mut out))
     });
     let mut a = Features::with_capacity(1000);
     let mut bfe = Features::with_capacity(1000);

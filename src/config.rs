@@ -24,6 +24,9 @@ pub struct OrbConfig {
     /// ORB-SLAM's distribution (most even, least repeatable); larger values favour strong,
     /// repeatable corners (see docs/DECISIONS.md for the measurements).
     pub quadtree_oversampling: f64,
+    /// Threads for one extraction (1 or 2): with 2 the pyramid levels are shared out between
+    /// two workers (same output). `sdslam features` always measures one thread.
+    pub threads: usize,
 }
 
 impl Default for OrbConfig {
@@ -35,6 +38,7 @@ impl Default for OrbConfig {
             ini_th_fast: 20,
             min_th_fast: 7,
             quadtree_oversampling: 2.0,
+            threads: 2,
         }
     }
 }
@@ -208,6 +212,9 @@ impl Config {
         };
         if self.orb.scale_factor <= 1.0 || !self.orb.scale_factor.is_finite() {
             return bad("orb.scale_factor", "must be a finite number > 1");
+        }
+        if !(1..=2).contains(&self.orb.threads) {
+            return bad("orb.threads", "must be 1 or 2");
         }
         if self.orb.n_levels == 0 || self.orb.n_levels > 16 {
             return bad("orb.n_levels", "must be in 1..=16");

@@ -49,8 +49,10 @@ pub fn features(a: FeaturesArgs) -> Result<()> {
     if a.repeat == 0 || a.n == 0 {
         return Err(Error::Invalid("--repeat and --n must be positive".into()));
     }
+    // One thread: the figure compared with other extractors is single-threaded.
     let cfg = OrbConfig {
         n_features: a.n,
+        threads: 1,
         ..OrbConfig::default()
     };
     let mut dec = ImageDecoderBuf::new();

@@ -3,11 +3,12 @@
 use super::brief::{describe, PatternPoints};
 use super::distribute::{distribute, QuadtreeScratch};
 use super::fast::{detect, Corner};
+use super::helper::Helper;
 use super::orientation::{circle_umax, ic_angle, MomentWeights};
 use super::{Features, KeyPoint};
 use crate::camera_model::PinholeRadtan;
 use crate::config::OrbConfig;
-use crate::image::{Pyramid, PyramidConfig};
+use crate::image::{gaussian_blur_7x7, PaddedImage, Pyramid, PyramidConfig};
 
 /// Keypoints stay this far (level pixels) from the level's edge; the padded border covers the
 /// orientation patch and the rotated BRIEF pattern beyond it.
@@ -33,20 +34,66 @@ pub fn features_per_level(n: usize, scale_factor: f64, levels: usize) -> Vec<usi
     out
 }
 
-/// ORB extraction for images of one size.
+/// Most pyramid levels (the config's bound).
+const MAX_LEVELS: usize = 16;
+
+/// One worker's scratch and output: the levels it was given are detected, distributed and
+/// described into `out`, `ranges[l]` marking each level's keypoints.
+struct Lane {
+    corners: Vec<Corner>,
+    score_map: Vec<u8>,
+    cell_counts: Vec<u32>,
+    scratch: QuadtreeScratch,
+    selected: Vec<u32>,
+    blur_tmp: Vec<u16>,
+    out: Features,
+    ranges: [(u32, u32); MAX_LEVELS],
+}
+
+impl Lane {
+    fn new(width: usize, height: usize, n_features: usize) -> Self {
+        let cells = (width / CELL + 2) * (height / CELL + 2);
+        Lane {
+            // Bounded by construction: at most one corner per pixel of level 0.
+            corners: Vec::with_capacity(width * height),
+            score_map: vec![0; width * height],
+            cell_counts: vec![0; cells],
+            scratch: QuadtreeScratch::with_capacity(width * height, n_features),
+            selected: Vec::with_capacity(n_features * 2),
+            blur_tmp: Vec::with_capacity((width + 16) * (height + 16)),
+            out: Features::with_capacity(n_features),
+            ranges: [(0, 0); MAX_LEVELS],
+        }
+    }
+}
+
+/// What every lane reads.
+struct Shared<'a> {
+    config: &'a OrbConfig,
+    per_level: &'a [usize],
+    moments: &'a MomentWeights,
+    pattern: &'a PatternPoints,
+    to_level0: &'a [(f64, f64)],
+    scales: &'a [f64],
+    levels: &'a [PaddedImage],
+}
+
+/// ORB extraction for images of one size. With `[orb] threads = 2` the levels are shared out
+/// between two lanes (balanced by area) that run at once; the output is the same as on one
+/// thread (levels are merged in order).
 pub struct OrbExtractor {
     config: OrbConfig,
     pyramid: Pyramid,
     per_level: Vec<usize>,
     moments: Box<MomentWeights>,
     pattern: Box<PatternPoints>,
-    corners: Vec<Corner>,
-    score_map: Vec<u8>,
-    cell_counts: Vec<u32>,
-    scratch: QuadtreeScratch,
-    selected: Vec<u32>,
     /// Per level: level -> level-0 coordinate scale (x, y), from the actual level sizes.
     to_level0: Vec<(f64, f64)>,
+    lanes: Vec<Lane>,
+    /// The lane of each level.
+    lane_of: [usize; MAX_LEVELS],
+    /// Runs the second lane while the caller runs the first (`None`: one thread).
+    helper: Option<Helper>,
 }
 
 impl OrbExtractor {
@@ -61,7 +108,7 @@ impl OrbExtractor {
                 pad: PAD,
             },
         );
-        let to_level0 = pyramid
+        let to_level0: Vec<(f64, f64)> = pyramid
             .levels
             .iter()
             .map(|l| {
@@ -71,18 +118,30 @@ impl OrbExtractor {
                 )
             })
             .collect();
-        let cells = (width / CELL + 2) * (height / CELL + 2);
+        let helper = (config.threads > 1 && pyramid.n_levels() > 1)
+            .then(|| Helper::spawn("orb-helper"))
+            .flatten();
+        // Largest level first, each to the lane with less area so far.
+        let mut lane_of = [0; MAX_LEVELS];
+        if helper.is_some() {
+            let mut area = [0usize; 2];
+            for (l, lv) in pyramid.levels.iter().enumerate().take(MAX_LEVELS) {
+                let lane = usize::from(area[1] < area[0]);
+                lane_of[l] = lane;
+                area[lane] += lv.width * lv.height;
+            }
+        }
+        let n_lanes = if helper.is_some() { 2 } else { 1 };
         OrbExtractor {
             per_level: features_per_level(config.n_features, config.scale_factor, config.n_levels),
             config: config.clone(),
             moments: Box::new(MomentWeights::new(&circle_umax())),
             pattern: Box::new(PatternPoints::new()),
-            // Bounded by construction: at most one corner per pixel of level 0.
-            corners: Vec::with_capacity(width * height),
-            score_map: vec![0; width * height],
-            cell_counts: vec![0; cells],
-            scratch: QuadtreeScratch::with_capacity(width * height, config.n_features),
-            selected: Vec::with_capacity(config.n_features * 2),
+            lanes: (0..n_lanes)
+                .map(|_| Lane::new(width, height, config.n_features))
+                .collect(),
+            lane_of,
+            helper,
             pyramid,
             to_level0,
         }
@@ -102,31 +161,53 @@ impl OrbExtractor {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above); the function is otherwise safe.
-            unsafe { self.extract_avx2(gray, camera, out) };
-            return;
+            unsafe { self.build_avx2(gray) };
+        } else {
+            self.pyramid.build(gray);
         }
-        self.extract_portable(gray, camera, out)
-    }
-
-    /// The whole extraction compiled for AVX2: the pyramid, blur, FAST, orientation and
-    /// descriptor loops inline into it and vectorise 32 bytes wide.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn extract_avx2(&mut self, gray: &[u8], camera: Option<&PinholeRadtan>, out: &mut Features) {
-        self.extract_portable(gray, camera, out)
-    }
-
-    #[inline(always)]
-    fn extract_portable(
-        &mut self,
-        gray: &[u8],
-        camera: Option<&PinholeRadtan>,
-        out: &mut Features,
-    ) {
-        out.clear();
+        #[cfg(not(target_arch = "x86_64"))]
         self.pyramid.build(gray);
-        for l in 0..self.pyramid.n_levels() {
-            self.extract_level(l, out);
+        let n = self.pyramid.n_levels().min(MAX_LEVELS);
+        let Pyramid {
+            levels,
+            blurred,
+            scales,
+            ..
+        } = &mut self.pyramid;
+        let shared = Shared {
+            config: &self.config,
+            per_level: &self.per_level,
+            moments: &self.moments,
+            pattern: &self.pattern,
+            to_level0: &self.to_level0,
+            scales,
+            levels,
+        };
+        // Each lane gets the blurred images of its levels (disjoint borrows, on the stack).
+        let mut mine: [[Option<&mut PaddedImage>; MAX_LEVELS]; 2] = Default::default();
+        for (l, b) in blurred.iter_mut().enumerate().take(n) {
+            mine[self.lane_of[l]][l] = Some(b);
+        }
+        let [m0, m1] = mine;
+        match (&self.helper, self.lanes.as_mut_slice()) {
+            (Some(helper), [a, b]) => {
+                let s = &shared;
+                helper.join(|| run_lane(s, m1, b), || run_lane(s, m0, a));
+            }
+            (_, lanes) => {
+                if let Some(a) = lanes.first_mut() {
+                    run_lane(&shared, m0, a);
+                }
+            }
+        }
+        out.clear();
+        for l in 0..n {
+            let lane = &self.lanes[self.lane_of[l]];
+            let (s, e) = lane.ranges[l];
+            let (s, e) = (s as usize, e as usize);
+            out.keypoints.extend_from_slice(&lane.out.keypoints[s..e]);
+            out.descriptors
+                .extend_from_slice(&lane.out.descriptors[s..e]);
         }
         if let Some(cam) = camera.filter(|c| !c.is_distortion_free()) {
             for k in &mut out.keypoints {
@@ -137,98 +218,128 @@ impl OrbExtractor {
         }
     }
 
-    #[inline(always)]
-    fn extract_level(&mut self, l: usize, out: &mut Features) {
-        let level = &self.pyramid.levels[l];
-        let (w, h) = (level.width, level.height);
-        if w <= 2 * MIN_BORDER + 8 || h <= 2 * MIN_BORDER + 8 {
-            return;
-        }
-        let (x0, y0, x1, y1) = (MIN_BORDER, MIN_BORDER, w - MIN_BORDER, h - MIN_BORDER);
-        let score_map = &mut self.score_map[..w * h];
-        score_map.fill(0);
-        self.corners.clear();
-        // FAST (with non-maximum suppression) at the initial threshold everywhere, then the low
-        // threshold in cells left empty.
-        detect(
-            level,
-            self.config.ini_th_fast,
-            (x0, y0, x1, y1),
-            &mut self.corners,
-            score_map,
-        );
-        let (cols, rows) = ((x1 - x0).div_ceil(CELL), (y1 - y0).div_ceil(CELL));
-        let counts = &mut self.cell_counts[..cols * rows];
-        counts.fill(0);
-        for c in &self.corners {
-            counts[(c.y as usize - y0) / CELL * cols + (c.x as usize - x0) / CELL] += 1;
-        }
-        if self.config.min_th_fast < self.config.ini_th_fast {
-            for cy in 0..rows {
-                for cx in 0..cols {
-                    if counts[cy * cols + cx] == 0 {
-                        let r = (
-                            x0 + cx * CELL,
-                            y0 + cy * CELL,
-                            (x0 + (cx + 1) * CELL).min(x1),
-                            (y0 + (cy + 1) * CELL).min(y1),
-                        );
-                        detect(
-                            level,
-                            self.config.min_th_fast,
-                            r,
-                            &mut self.corners,
-                            score_map,
-                        );
-                    }
+    /// The pyramid compiled for AVX2 (the resampling loops vectorise 32 bytes wide).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn build_avx2(&mut self, gray: &[u8]) {
+        self.pyramid.build(gray)
+    }
+}
+
+/// Detects, distributes and describes the levels whose blurred image `mine` holds.
+fn run_lane(s: &Shared, mine: [Option<&mut PaddedImage>; MAX_LEVELS], lane: &mut Lane) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above); the function is otherwise safe.
+        unsafe { run_lane_avx2(s, mine, lane) };
+        return;
+    }
+    run_lane_portable(s, mine, lane)
+}
+
+/// The lane's work compiled for AVX2: blur, FAST, orientation and descriptor loops inline
+/// into it and vectorise 32 bytes wide.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn run_lane_avx2(s: &Shared, mine: [Option<&mut PaddedImage>; MAX_LEVELS], lane: &mut Lane) {
+    run_lane_portable(s, mine, lane)
+}
+
+#[inline(always)]
+fn run_lane_portable(s: &Shared, mine: [Option<&mut PaddedImage>; MAX_LEVELS], lane: &mut Lane) {
+    lane.out.clear();
+    for (l, blurred) in mine.into_iter().enumerate() {
+        let Some(blurred) = blurred else { continue };
+        let start = lane.out.keypoints.len() as u32;
+        extract_level(s, l, blurred, lane);
+        lane.ranges[l] = (start, lane.out.keypoints.len() as u32);
+    }
+}
+
+#[inline(always)]
+fn extract_level(s: &Shared, l: usize, blurred: &mut PaddedImage, lane: &mut Lane) {
+    let level = &s.levels[l];
+    let (w, h) = (level.width, level.height);
+    if w <= 2 * MIN_BORDER + 8 || h <= 2 * MIN_BORDER + 8 {
+        return;
+    }
+    let (x0, y0, x1, y1) = (MIN_BORDER, MIN_BORDER, w - MIN_BORDER, h - MIN_BORDER);
+    let score_map = &mut lane.score_map[..w * h];
+    score_map.fill(0);
+    lane.corners.clear();
+    // FAST (with non-maximum suppression) at the initial threshold everywhere, then the low
+    // threshold in cells left empty.
+    detect(
+        level,
+        s.config.ini_th_fast,
+        (x0, y0, x1, y1),
+        &mut lane.corners,
+        score_map,
+    );
+    let (cols, rows) = ((x1 - x0).div_ceil(CELL), (y1 - y0).div_ceil(CELL));
+    let counts = &mut lane.cell_counts[..cols * rows];
+    counts.fill(0);
+    for c in &lane.corners {
+        counts[(c.y as usize - y0) / CELL * cols + (c.x as usize - x0) / CELL] += 1;
+    }
+    if s.config.min_th_fast < s.config.ini_th_fast {
+        for cy in 0..rows {
+            for cx in 0..cols {
+                if counts[cy * cols + cx] == 0 {
+                    let r = (
+                        x0 + cx * CELL,
+                        y0 + cy * CELL,
+                        (x0 + (cx + 1) * CELL).min(x1),
+                        (y0 + (cy + 1) * CELL).min(y1),
+                    );
+                    detect(level, s.config.min_th_fast, r, &mut lane.corners, score_map);
                 }
             }
         }
-        let wanted = self.per_level[l];
-        // More nodes than wanted, then the strongest node winners: spread like ORB-SLAM's
-        // quadtree, but strong (repeatable) corners survive node boundaries moving.
-        let nodes = (wanted as f64 * self.config.quadtree_oversampling).round() as usize;
-        distribute(
-            &self.corners,
-            (x0 as f32, y0 as f32, x1 as f32, y1 as f32),
-            nodes,
-            &mut self.scratch,
-            &mut self.selected,
-        );
-        if self.selected.len() > wanted {
-            let corners = &self.corners;
-            self.selected
-                .sort_unstable_by_key(|&i| std::cmp::Reverse(corners[i as usize].score));
-            self.selected.truncate(wanted);
-        }
-        if self.selected.is_empty() {
-            return;
-        }
-        self.pyramid.blur_level(l);
-        let level = &self.pyramid.levels[l];
-        let blurred = &self.pyramid.blurred[l];
-        let (sx, sy) = self.to_level0[l];
-        let scale = self.pyramid.scales[l] as f32;
-        for &i in &self.selected {
-            let c = self.corners[i as usize];
-            let (x, y) = (c.x as isize, c.y as isize);
-            let angle = ic_angle(level, x, y, &self.moments);
-            out.descriptors
-                .push(describe(blurred, &self.pattern, x, y, angle));
-            // Level pixel centres map to level-0 positions through the resampling geometry.
-            let px = ((c.x as f64 + 0.5) * sx - 0.5) as f32;
-            let py = ((c.y as f64 + 0.5) * sy - 0.5) as f32;
-            out.keypoints.push(KeyPoint {
-                x: px,
-                y: py,
-                ux: px,
-                uy: py,
-                octave: l as u8,
-                angle,
-                response: c.score as f32,
-                size: 31.0 * scale,
-            });
-        }
+    }
+    let wanted = s.per_level[l];
+    // More nodes than wanted, then the strongest node winners: spread like ORB-SLAM's
+    // quadtree, but strong (repeatable) corners survive node boundaries moving.
+    let nodes = (wanted as f64 * s.config.quadtree_oversampling).round() as usize;
+    distribute(
+        &lane.corners,
+        (x0 as f32, y0 as f32, x1 as f32, y1 as f32),
+        nodes,
+        &mut lane.scratch,
+        &mut lane.selected,
+    );
+    if lane.selected.len() > wanted {
+        let corners = &lane.corners;
+        lane.selected
+            .sort_unstable_by_key(|&i| std::cmp::Reverse(corners[i as usize].score));
+        lane.selected.truncate(wanted);
+    }
+    if lane.selected.is_empty() {
+        return;
+    }
+    gaussian_blur_7x7(level, blurred, &mut lane.blur_tmp);
+    let (sx, sy) = s.to_level0[l];
+    let scale = s.scales[l] as f32;
+    for &i in &lane.selected {
+        let c = lane.corners[i as usize];
+        let (x, y) = (c.x as isize, c.y as isize);
+        let angle = ic_angle(level, x, y, s.moments);
+        lane.out
+            .descriptors
+            .push(describe(blurred, s.pattern, x, y, angle));
+        // Level pixel centres map to level-0 positions through the resampling geometry.
+        let px = ((c.x as f64 + 0.5) * sx - 0.5) as f32;
+        let py = ((c.y as f64 + 0.5) * sy - 0.5) as f32;
+        lane.out.keypoints.push(KeyPoint {
+            x: px,
+            y: py,
+            ux: px,
+            uy: py,
+            octave: l as u8,
+            angle,
+            response: c.score as f32,
+            size: 31.0 * scale,
+        });
     }
 }
 
@@ -242,5 +353,29 @@ mod tests {
         assert_eq!(v.iter().sum::<usize>(), 1000);
         assert_eq!(v[0], 217);
         assert!(v.windows(2).take(6).all(|w| w[0] > w[1]));
+    }
+
+    #[test]
+    fn two_lanes_give_exactly_the_one_thread_output() {
+        let seq = crate::synthetic::SyntheticSequence::new(Default::default());
+        let mut f = crate::camera::Frame::new(640, 480);
+        seq.render_frame(30, &mut f);
+        let one = OrbConfig {
+            threads: 1,
+            ..OrbConfig::default()
+        };
+        let two = OrbConfig {
+            threads: 2,
+            ..OrbConfig::default()
+        };
+        let (mut a, mut b) = (Features::default(), Features::default());
+        OrbExtractor::new(640, 480, &one).extract(&f.gray, None, &mut a);
+        let mut ex2 = OrbExtractor::new(640, 480, &two);
+        for _ in 0..3 {
+            ex2.extract(&f.gray, None, &mut b);
+            assert_eq!(a.keypoints.len(), 1000);
+            assert_eq!(a.keypoints, b.keypoints);
+            assert_eq!(a.descriptors, b.descriptors);
+        }
     }
 }

@@ -7,6 +7,7 @@ pub mod brief;
 mod distribute;
 mod extractor;
 pub mod fast;
+mod helper;
 pub mod orientation;
 pub mod quality;
 

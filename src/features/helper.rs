@@ -1,0 +1,160 @@
+//! A second thread for one borrowed job at a time: [`Helper::join`] runs one closure on the
+//! helper while the caller runs the other, and returns when both are done, like
+//! `std::thread::scope` but without spawning a thread (or allocating) per call. A thread pool
+//! entered from outside (rayon's `install`/`join`) queues each call in a segmented injector
+//! that allocates a new segment every 63 calls, which breaks tracking's zero-allocation rule.
+
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+
+/// A job on the caller's stack, type- and lifetime-erased. Only [`Helper::join`] makes one,
+/// and it does not return before the helper has finished with it.
+struct JobPtr(*mut (dyn FnMut() + Send + 'static));
+
+// SAFETY: the pointee is `Send` (enforced by `join`'s bound), and it is only touched by the
+// helper between being posted and `done` being set, while the caller waits.
+unsafe impl Send for JobPtr {}
+
+#[derive(Default)]
+struct Slot {
+    job: Option<JobPtr>,
+    done: bool,
+    panicked: bool,
+    quit: bool,
+}
+
+#[derive(Default)]
+struct Shared {
+    slot: Mutex<Slot>,
+    posted: Condvar,
+    finished: Condvar,
+}
+
+fn lock(m: &Mutex<Slot>) -> MutexGuard<'_, Slot> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+pub struct Helper {
+    shared: Arc<Shared>,
+    handle: Option<JoinHandle<()>>,
+}
+
+impl Helper {
+    /// Starts the helper thread; `None` when no thread can be started.
+    pub fn spawn(name: &str) -> Option<Self> {
+        let shared = Arc::new(Shared::default());
+        let s = Arc::clone(&shared);
+        let handle = std::thread::Builder::new()
+            .name(name.into())
+            .spawn(move || loop {
+                let job = {
+                    let mut slot = lock(&s.slot);
+                    loop {
+                        if slot.quit {
+                            return;
+                        }
+                        if let Some(j) = slot.job.take() {
+                            break j;
+                        }
+                        slot = s.posted.wait(slot).unwrap_or_else(|e| e.into_inner());
+                    }
+                };
+                // SAFETY: `join` keeps the closure alive and untouched until `done` is set.
+                let f = unsafe { &mut *job.0 };
+                let ok = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).is_ok();
+                let mut slot = lock(&s.slot);
+                slot.done = true;
+                slot.panicked = !ok;
+                s.finished.notify_all();
+            })
+            .ok()?;
+        Some(Helper {
+            shared,
+            handle: Some(handle),
+        })
+    }
+
+    /// Runs `on_helper` on the helper thread and `here` on the calling thread; returns when
+    /// both have finished. A panic in either is resumed here, after both have finished.
+    pub fn join<A: FnOnce() + Send, B: FnOnce()>(&self, on_helper: A, here: B) {
+        let mut once = Some(on_helper);
+        let mut call = move || {
+            if let Some(f) = once.take() {
+                f()
+            }
+        };
+        let ptr: *mut (dyn FnMut() + Send + '_) = &mut call;
+        // SAFETY: only the lifetime is erased; `Wait` below blocks until the helper has
+        // finished with the closure, on every way out of this function (unwinding included).
+        let ptr: *mut (dyn FnMut() + Send + 'static) = unsafe { std::mem::transmute(ptr) };
+        {
+            let mut slot = lock(&self.shared.slot);
+            slot.job = Some(JobPtr(ptr));
+            slot.done = false;
+            self.shared.posted.notify_one();
+        }
+        /// Waits for the helper's `done` when dropped (so also when `here` panics).
+        struct Wait<'a>(&'a Shared);
+        impl Drop for Wait<'_> {
+            fn drop(&mut self) {
+                let mut slot = lock(&self.0.slot);
+                while !slot.done {
+                    slot = self
+                        .0
+                        .finished
+                        .wait(slot)
+                        .unwrap_or_else(|e| e.into_inner());
+                }
+            }
+        }
+        let wait = Wait(&self.shared);
+        here();
+        drop(wait);
+        if lock(&self.shared.slot).panicked {
+            panic!("ORB helper thread panicked");
+        }
+    }
+}
+
+impl Drop for Helper {
+    fn drop(&mut self) {
+        lock(&self.shared.slot).quit = true;
+        self.shared.posted.notify_all();
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn both_halves_run_and_borrow_the_callers_data() {
+        let h = Helper::spawn("test-helper").unwrap();
+        let mut a = vec![0u32; 1000];
+        let mut b = vec![0u32; 1000];
+        for round in 1..=100u32 {
+            let (x, y) = (&mut a, &mut b);
+            h.join(
+                || x.iter_mut().for_each(|v| *v += round),
+                || y.iter_mut().for_each(|v| *v += 2 * round),
+            );
+        }
+        assert!(a.iter().all(|&v| v == 5050));
+        assert!(b.iter().all(|&v| v == 10100));
+    }
+
+    #[test]
+    fn a_panic_on_the_helper_reaches_the_caller_and_the_helper_survives() {
+        let h = Helper::spawn("test-helper").unwrap();
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            h.join(|| panic!("boom"), || {})
+        }));
+        assert!(r.is_err());
+        let mut ran = false;
+        h.join(|| ran = true, || {});
+        assert!(ran);
+    }
+}
