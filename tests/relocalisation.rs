@@ -3,6 +3,8 @@
 //! mapped place (frames 100.. again). Relocalisation (bag-of-words candidates, EPnP-RANSAC,
 //! pose optimisation, local map) must recover within 10 frames, at the right pose.
 
+mod common;
+
 use sdslam::camera::Frame;
 use sdslam::config::Config;
 use sdslam::eval::ate;
@@ -84,4 +86,83 @@ fn relocalises_within_10_frames_after_a_60_frame_blackout() {
         r.rmse_m
     );
     assert!(r.rmse_m < 0.02 * extent.max(0.1), "{} m", r.rmse_m);
+}
+
+/// Desk and posters (`../shared/data`) through the CLI: the first part of the sequence, the
+/// lens covered for 60 frames (black images: tracking is lost), then the camera back at a
+/// place mapped earlier (the sequence resumes from an earlier frame). The first pose after
+/// the blackout must come within 10 frames, by relocalisation.
+#[test]
+fn desk_and_posters_relocalise_within_10_frames_of_returning_to_mapped_space() {
+    let Some(data) = common::shared_data() else {
+        return;
+    };
+    for (seq, covered_at, resume_at) in [("desk", 300, 150), ("posters", 250, 120)] {
+        let src = data.join("synthetic").join(seq);
+        let d = tempfile::tempdir().unwrap();
+        let dir = d.path().join("replay");
+        std::fs::create_dir_all(dir.join("rgb")).unwrap();
+        std::fs::copy(src.join("camera.yaml"), dir.join("camera.yaml")).unwrap();
+        image::RgbImage::new(640, 480)
+            .save(dir.join("rgb/black.png"))
+            .unwrap();
+        let list = std::fs::read_to_string(src.join("rgb.txt")).unwrap();
+        let files: Vec<String> = list
+            .lines()
+            .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+            .map(|l| l.split_whitespace().nth(1).unwrap().to_string())
+            .collect();
+        let mut lines = Vec::new();
+        let frames = (0..covered_at)
+            .map(Some)
+            .chain(std::iter::repeat_n(None, 60))
+            .chain((resume_at..resume_at + 120).map(Some));
+        for (k, f) in frames.enumerate() {
+            let t = 1_700_000_000.0 + k as f64 / 30.0;
+            let file = match f {
+                Some(i) => src.join(&files[i]).display().to_string(),
+                None => "rgb/black.png".to_string(),
+            };
+            lines.push(format!("{t:.6} {file}"));
+        }
+        std::fs::write(dir.join("rgb.txt"), lines.join("\n") + "\n").unwrap();
+        let out = d.path().join("out");
+        let (ok, _, err) = common::sdslam(&[
+            "run",
+            dir.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--no-semidense",
+            "--no-plots",
+            "--quiet",
+        ]);
+        assert!(ok, "{seq}: {err}");
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
+                .unwrap();
+        assert!(
+            report["lost_episodes"].as_u64().unwrap() >= 1,
+            "{seq}: never lost"
+        );
+        assert!(
+            report["relocalisations"].as_u64().unwrap() >= 1,
+            "{seq}: not relocalised"
+        );
+        let back = (covered_at + 60) as f64;
+        let first = sdslam::io::read_tum_trajectory(&out.join("trajectory.txt"))
+            .unwrap()
+            .iter()
+            .map(|p| ((p.timestamp - 1_700_000_000.0) * 30.0).round())
+            .filter(|&k| k >= back)
+            .fold(f64::INFINITY, f64::min);
+        eprintln!(
+            "{seq}: first pose {} frames after the blackout",
+            first - back
+        );
+        assert!(
+            first - back <= 10.0,
+            "{seq}: {} frames to recover",
+            first - back
+        );
+    }
 }
