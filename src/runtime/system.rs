@@ -32,7 +32,7 @@ mod initialisation;
 mod mapping_thread;
 
 use backfill::{Backfill, BACKFILL_PER_FRAME};
-use mapping_thread::spawn_mapper;
+use mapping_thread::{spawn_mapper, Mapping};
 
 /// What happened to one frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -71,31 +71,6 @@ pub struct SystemStats {
     /// Making a keyframe on the tracking thread (map insertion, observations, database).
     pub keyframe_insertion: StageTimer,
     pub local_mapping: StageTimer,
-}
-
-/// Where local mapping runs.
-enum Mapping {
-    /// On the tracking thread, right after the keyframe is made (deterministic mode).
-    Inline(Box<(LocalMapper, LoopCloser)>),
-    /// On its own thread, fed by a bounded channel; never holds the map during BA. Loop
-    /// closing runs on a third thread fed by the mapping thread (`None`: it could not be
-    /// started, and the mapping thread closes loops itself).
-    Thread {
-        tx: Option<Sender<KeyFrameId>>,
-        /// Returns the local-mapping timer (and the loop figures when it closed loops itself).
-        handle: Option<JoinHandle<(StageTimer, LoopStats)>>,
-        closer: Option<JoinHandle<LoopStats>>,
-        idle: Arc<AtomicBool>,
-    },
-}
-
-/// What loop closing did in a run.
-#[derive(Default)]
-struct LoopStats {
-    timer: Option<StageTimer>,
-    loops_closed: usize,
-    revisits_closed: usize,
-    history: Vec<crate::loop_closing::LoopRecord>,
 }
 
 /// Locks the map; a panicked mapping thread must not take tracking down with it.
@@ -273,30 +248,10 @@ impl System {
     /// map and everything else are still usable).
     pub fn finish(&mut self) -> bool {
         let mut ok = true;
-        if let Mapping::Thread {
-            tx,
-            handle,
-            closer,
-            idle,
-        } = &mut self.mapping
-        {
-            // The mapping thread drains its queue and hangs up on the loop-closing thread,
-            // which then drains its own.
-            tx.take();
-            let mut loops = LoopStats::default();
-            ok = match handle.take().map(|h| h.join()) {
-                Some(Ok((timer, l))) => {
-                    self.stats.local_mapping = timer;
-                    loops = l;
-                    true
-                }
-                Some(Err(_)) => false,
-                None => true,
-            };
-            match closer.take().map(|h| h.join()) {
-                Some(Ok(l)) => loops = l,
-                Some(Err(_)) => ok = false,
-                None => {}
+        if let Some((joined, timer, loops)) = self.mapping.join() {
+            ok = joined;
+            if let Some(t) = timer {
+                self.stats.local_mapping = t;
             }
             if let Some(t) = loops.timer {
                 self.stats.loop_closing = t;
@@ -304,7 +259,6 @@ impl System {
             self.stats.loops_closed = loops.loops_closed;
             self.stats.loops_closed_by_revisit = loops.revisits_closed;
             self.stats.loop_closures = loops.history;
-            idle.store(true, Ordering::Release);
         }
         if self.backfill.active() {
             let map_arc = Arc::clone(&self.map);

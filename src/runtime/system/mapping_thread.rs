@@ -4,6 +4,66 @@
 
 use super::*;
 
+/// Where local mapping runs.
+pub(super) enum Mapping {
+    /// On the tracking thread, right after the keyframe is made (deterministic mode).
+    Inline(Box<(LocalMapper, LoopCloser)>),
+    /// On its own thread, fed by a bounded channel; never holds the map during BA. Loop
+    /// closing runs on a third thread fed by the mapping thread (`None`: it could not be
+    /// started, and the mapping thread closes loops itself).
+    Thread {
+        tx: Option<Sender<KeyFrameId>>,
+        /// Returns the local-mapping timer (and the loop figures when it closed loops itself).
+        handle: Option<JoinHandle<(StageTimer, LoopStats)>>,
+        closer: Option<JoinHandle<LoopStats>>,
+        idle: Arc<AtomicBool>,
+    },
+}
+
+/// What loop closing did in a run.
+#[derive(Default)]
+pub(super) struct LoopStats {
+    pub(super) timer: Option<StageTimer>,
+    pub(super) loops_closed: usize,
+    pub(super) revisits_closed: usize,
+    pub(super) history: Vec<crate::loop_closing::LoopRecord>,
+}
+
+impl Mapping {
+    /// Threaded mode: stops the mapping thread after it has processed every queued keyframe
+    /// (it then hangs up on the loop-closing thread, which drains its own queue) and joins
+    /// both. Returns whether neither had panicked, the local-mapping timer and the loop
+    /// figures; `None` inline.
+    pub(super) fn join(&mut self) -> Option<(bool, Option<StageTimer>, LoopStats)> {
+        let Mapping::Thread {
+            tx,
+            handle,
+            closer,
+            idle,
+        } = self
+        else {
+            return None;
+        };
+        tx.take();
+        let (mut ok, mut timer, mut loops) = (true, None, LoopStats::default());
+        match handle.take().map(|h| h.join()) {
+            Some(Ok((t, l))) => {
+                timer = Some(t);
+                loops = l;
+            }
+            Some(Err(_)) => ok = false,
+            None => {}
+        }
+        match closer.take().map(|h| h.join()) {
+            Some(Ok(l)) => loops = l,
+            Some(Err(_)) => ok = false,
+            None => {}
+        }
+        idle.store(true, Ordering::Release);
+        Some((ok, timer, loops))
+    }
+}
+
 /// Starts the local-mapping thread: per keyframe, prepare under the lock, BA without it, write
 /// back under the lock, then pass the keyframe to loop closing. Exits when the channel closes
 /// (after draining it), hanging up on the loop-closing thread.
