@@ -189,7 +189,7 @@ impl OrbExtractor {
             mine[self.lane_of[l]][l] = Some(b);
         }
         let [m0, m1] = mine;
-        match (&self.helper, self.lanes.as_mut_slice()) {
+        match (&mut self.helper, self.lanes.as_mut_slice()) {
             (Some(helper), [a, b]) => {
                 let s = &shared;
                 helper.join(|| run_lane(s, m1, b), || run_lane(s, m0, a));

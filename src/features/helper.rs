@@ -76,7 +76,8 @@ impl Helper {
 
     /// Runs `on_helper` on the helper thread and `here` on the calling thread; returns when
     /// both have finished. A panic in either is resumed here, after both have finished.
-    pub fn join<A: FnOnce() + Send, B: FnOnce()>(&self, on_helper: A, here: B) {
+    /// (`&mut self`: one job at a time.)
+    pub fn join<A: FnOnce() + Send, B: FnOnce()>(&mut self, on_helper: A, here: B) {
         let mut once = Some(on_helper);
         let mut call = move || {
             if let Some(f) = once.take() {
@@ -132,7 +133,7 @@ mod tests {
 
     #[test]
     fn both_halves_run_and_borrow_the_callers_data() {
-        let h = Helper::spawn("test-helper").unwrap();
+        let mut h = Helper::spawn("test-helper").unwrap();
         let mut a = vec![0u32; 1000];
         let mut b = vec![0u32; 1000];
         for round in 1..=100u32 {
@@ -148,7 +149,7 @@ mod tests {
 
     #[test]
     fn a_panic_on_the_helper_reaches_the_caller_and_the_helper_survives() {
-        let h = Helper::spawn("test-helper").unwrap();
+        let mut h = Helper::spawn("test-helper").unwrap();
         let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             h.join(|| panic!("boom"), || {})
         }));

@@ -149,8 +149,10 @@ impl LocalMapper {
     /// drop outlier observations, cull redundant keyframes. A result solved from poses that a
     /// loop correction or full BA has since moved is dropped: writing it would undo that.
     pub fn finish(&mut self, map: &mut Map, kf: KeyFrameId) {
-        if self.has_ba && self.ba_epoch == map.correction_epoch() {
-            self.write_back(map);
+        if self.has_ba {
+            if self.ba_epoch == map.correction_epoch() {
+                self.write_back(map);
+            }
             self.has_ba = false;
         }
         self.cull_keyframes(map, kf);

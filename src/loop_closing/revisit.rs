@@ -246,6 +246,21 @@ mod tests {
         map.update_connections(b);
     }
 
+    /// `later` sees 20 new points of `old` (keypoints 40..60 of `old`, 60..80 of `later`), as
+    /// when tracking re-associates a place mapped before.
+    fn reobserve(map: &mut Map, old: KeyFrameId, later: KeyFrameId) {
+        let c = map.keyframe(old).unwrap().t_cw.center();
+        for i in 0..20 {
+            let p = map
+                .insert_point(c + Vector3::new(i as f64 * 0.01, 0.1, 3.0), old)
+                .unwrap();
+            map.add_observation(p, old, 40 + i);
+            map.add_observation(p, later, 60 + i);
+        }
+        map.update_connections(later);
+        map.update_connections(old);
+    }
+
     fn closer() -> LoopCloser {
         let cam = PinholeRadtan::pinhole(520.0, 520.0, 320.0, 240.0, 640, 480);
         LoopCloser::new(cam, &[1.0, 1.2, 1.44])
@@ -262,16 +277,7 @@ mod tests {
         );
         // Tracking re-associates the start's points: the last keyframe sees 20 of keyframe 0.
         let first = kfs[0];
-        let c = map.keyframe(first).unwrap().t_cw.center();
-        for i in 0..20 {
-            let p = map
-                .insert_point(c + Vector3::new(i as f64 * 0.01, 0.1, 3.0), first)
-                .unwrap();
-            map.add_observation(p, first, 40 + i);
-            map.add_observation(p, last, 60 + i);
-        }
-        map.update_connections(last);
-        map.update_connections(first);
+        reobserve(&mut map, first, last);
         assert_eq!(closer().detect_revisit(&map, last), Some(first));
         // Once that loop is an edge, a later keyframe near the start is no new loop.
         map.keyframe_mut(last).unwrap().loop_edges.push(first);
@@ -294,15 +300,7 @@ mod tests {
         // a floor): travelled half the circle, pi r, against a distance of 2 r.
         let (mut map, kfs) = ring(N / 2 + 1);
         let (first, opposite) = (kfs[0], kfs[N / 2]);
-        let c = map.keyframe(first).unwrap().t_cw.center();
-        for i in 0..20 {
-            let p = map
-                .insert_point(c + Vector3::new(i as f64 * 0.01, 0.1, 3.0), first)
-                .unwrap();
-            map.add_observation(p, first, 40 + i);
-            map.add_observation(p, opposite, 60 + i);
-        }
-        map.update_connections(opposite);
+        reobserve(&mut map, first, opposite);
         assert!(map
             .keyframe(opposite)
             .unwrap()
