@@ -9,7 +9,7 @@
 //! When the drift around a loop is small, tracking finds the old place's points by projection
 //! before any of this runs, and bag-of-words detection (which skips covisible keyframes) has
 //! nothing left to find. Such a loop shows as a covisibility edge between keyframes that are
-//! close in space but far apart along the path travelled between them ([`revisit`]); it gets
+//! close in space but far apart along the path travelled between them (`revisit.rs`); it gets
 //! the same loop edge, loop fusion and full BA, but no pose correction (tracking already made
 //! the new keyframe agree with the old place).
 
@@ -78,7 +78,7 @@ pub struct PlaceIndex {
 pub enum LoopKind {
     /// Bag-of-words detection, Sim3 and a pose correction.
     Place,
-    /// Tracking had already joined the old place (see [`revisit`]): no pose correction.
+    /// Tracking had already joined the old place (see `revisit.rs`): no pose correction.
     Revisit,
 }
 
@@ -118,7 +118,7 @@ pub struct LoopCloser {
     pub loops_closed: usize,
     /// Of `loops_closed`, those found as revisits.
     pub revisits_closed: usize,
-    /// The loops closed, in order (the first [`MAX_LOOP_RECORDS`]).
+    /// The loops closed, in order (the first 256).
     pub history: Vec<LoopRecord>,
 }
 
