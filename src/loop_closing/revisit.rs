@@ -228,37 +228,30 @@ mod tests {
         (map, kfs)
     }
 
-    /// 20 new points seen by `a` (keypoints 0..20) and `b` (keypoints 20..40).
-    fn share(map: &mut Map, a: KeyFrameId, b: KeyFrameId) {
+    /// 20 new points near `a`'s view, seen by `a` at keypoints `ka..ka+20` and by `b` at
+    /// `kb..kb+20`.
+    fn share_points(map: &mut Map, a: KeyFrameId, b: KeyFrameId, ka: usize, kb: usize) {
         let c = map.keyframe(a).unwrap().t_cw.center();
         for i in 0..20 {
             let p = map
-                .insert_point(c + Vector3::new(i as f64 * 0.01, 0.0, 3.0), a)
+                .insert_point(c + Vector3::new(i as f64 * 0.01, ka as f64 * 1e-3, 3.0), a)
                 .unwrap();
-            let ia = map.keyframe(a).unwrap().points[..20]
-                .iter()
-                .position(|s| s.is_none())
-                .unwrap();
-            map.add_observation(p, a, ia);
-            map.add_observation(p, b, 20 + i);
+            map.add_observation(p, a, ka + i);
+            map.add_observation(p, b, kb + i);
         }
         map.update_connections(a);
         map.update_connections(b);
     }
 
+    /// Consecutive keyframes of the ring: keypoints 0..20 of the first, 20..40 of the second.
+    fn share(map: &mut Map, a: KeyFrameId, b: KeyFrameId) {
+        share_points(map, a, b, 0, 20);
+    }
+
     /// `later` sees 20 new points of `old` (keypoints 40..60 of `old`, 60..80 of `later`), as
     /// when tracking re-associates a place mapped before.
     fn reobserve(map: &mut Map, old: KeyFrameId, later: KeyFrameId) {
-        let c = map.keyframe(old).unwrap().t_cw.center();
-        for i in 0..20 {
-            let p = map
-                .insert_point(c + Vector3::new(i as f64 * 0.01, 0.1, 3.0), old)
-                .unwrap();
-            map.add_observation(p, old, 40 + i);
-            map.add_observation(p, later, 60 + i);
-        }
-        map.update_connections(later);
-        map.update_connections(old);
+        share_points(map, old, later, 40, 60);
     }
 
     fn closer() -> LoopCloser {
