@@ -401,7 +401,9 @@ impl LocalMapper {
         let candidates: Vec<KeyFrameId> = k.covisibles.iter().map(|&(f, _)| f).collect();
         for c in candidates {
             let Some(ck) = map.keyframe(c) else { continue };
-            if ck.parent.is_none() {
+            // The root, and keyframes holding a loop edge (the loop's record in the essential
+            // graph, and the revisit test's shortcut), stay (as in ORB-SLAM).
+            if ck.parent.is_none() || !ck.loop_edges.is_empty() {
                 continue;
             }
             let (mut total, mut redundant) = (0usize, 0usize);
