@@ -116,12 +116,6 @@ impl Pyramid {
             gaussian_blur_7x7(&self.levels[l], &mut self.blurred[l], &mut self.tmp);
         }
     }
-
-    /// Blurs one level.
-    #[inline(always)]
-    pub fn blur_level(&mut self, l: usize) {
-        gaussian_blur_7x7(&self.levels[l], &mut self.blurred[l], &mut self.tmp);
-    }
 }
 
 /// Bilinear downsampling with precomputed maps: blend the two source rows (contiguous, SIMD),
