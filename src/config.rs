@@ -24,6 +24,14 @@ pub struct OrbConfig {
     /// ORB-SLAM's distribution (most even, least repeatable); larger values favour strong,
     /// repeatable corners (see docs/DECISIONS.md for the measurements).
     pub quadtree_oversampling: f64,
+    /// Response ranking the quadtree's node winners (and reported as keypoint response):
+    /// `harris` (OpenCV's ORB default) or `fast` (the FAST threshold score).
+    pub score_type: OrbScore,
+    /// How a level's corners are spread: `quadtree` (ORB-SLAM) or `radius` (strongest first
+    /// with the largest suppression radius that keeps the count).
+    pub distribution: OrbDistribution,
+    /// Candidates per wanted feature whose response is computed (the strongest by FAST score).
+    pub candidates: f64,
     /// Threads for one extraction (1 or 2): with 2 the pyramid levels are shared out between
     /// two workers (same output). `sdslam features` always measures one thread.
     pub threads: usize,
@@ -38,9 +46,29 @@ impl Default for OrbConfig {
             ini_th_fast: 20,
             min_th_fast: 7,
             quadtree_oversampling: 2.0,
+            score_type: OrbScore::Harris,
+            distribution: OrbDistribution::Quadtree,
+            candidates: 2.0,
             threads: 2,
         }
     }
+}
+
+/// How ORB spreads a level's corners over the image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OrbDistribution {
+    Quadtree,
+    Radius,
+    Strongest,
+}
+
+/// How ORB ranks corners (Rublee et al. 2011 rank FAST corners by the Harris measure).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OrbScore {
+    Harris,
+    Fast,
 }
 
 /// Semi-dense mapping (Mur-Artal & Tardós, RSS 2015, section III).

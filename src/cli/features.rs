@@ -32,6 +32,9 @@ pub struct FeaturesArgs {
     /// homography (9 numbers, row-major, mapping source to warped pixels).
     #[arg(long, allow_hyphen_values = true)]
     warp: Option<String>,
+    /// TOML configuration whose `[orb]` section is used (threads are forced to 1).
+    #[arg(long)]
+    config: Option<PathBuf>,
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -50,10 +53,14 @@ pub fn features(a: FeaturesArgs) -> Result<()> {
         return Err(Error::Invalid("--repeat and --n must be positive".into()));
     }
     // One thread: the figure compared with other extractors is single-threaded.
+    let base = match &a.config {
+        Some(p) => sdslam::config::Config::load(p)?.orb,
+        None => OrbConfig::default(),
+    };
     let cfg = OrbConfig {
         n_features: a.n,
         threads: 1,
-        ..OrbConfig::default()
+        ..base
     };
     let mut dec = ImageDecoderBuf::new();
     let mut frame = Frame::new(0, 0);

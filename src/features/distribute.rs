@@ -5,6 +5,8 @@
 //! Nodes hold ranges of one index array that splitting partitions in place, so the scratch
 //! vectors are reused from frame to frame without allocating.
 
+use std::collections::BinaryHeap;
+
 use super::fast::Corner;
 
 #[derive(Clone, Copy, Debug)]
@@ -29,6 +31,33 @@ pub struct QuadtreeScratch {
     idx: Vec<u32>,
     nodes: Vec<Node>,
     next: Vec<Node>,
+    heap: BinaryHeap<ByLen>,
+}
+
+/// A node ordered by its corner count (then position, so the order is deterministic).
+struct ByLen(Node);
+
+impl ByLen {
+    fn key(&self) -> (u32, u32) {
+        (self.0.end - self.0.start, u32::MAX - self.0.start)
+    }
+}
+
+impl PartialEq for ByLen {
+    fn eq(&self, o: &Self) -> bool {
+        self.key() == o.key()
+    }
+}
+impl Eq for ByLen {}
+impl PartialOrd for ByLen {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for ByLen {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        self.key().cmp(&o.key())
+    }
 }
 
 impl QuadtreeScratch {
@@ -37,6 +66,7 @@ impl QuadtreeScratch {
             idx: Vec::with_capacity(corners),
             nodes: Vec::with_capacity(nodes * 4 + 16),
             next: Vec::with_capacity(nodes * 4 + 16),
+            heap: BinaryHeap::with_capacity(nodes * 4 + 16),
         }
     }
 }
@@ -100,7 +130,12 @@ pub fn distribute(
     if corners.is_empty() || wanted == 0 {
         return;
     }
-    let QuadtreeScratch { idx, nodes, next } = scratch;
+    let QuadtreeScratch {
+        idx,
+        nodes,
+        next,
+        heap,
+    } = scratch;
     idx.clear();
     idx.extend(0..corners.len() as u32);
     nodes.clear();
@@ -144,19 +179,27 @@ pub fn distribute(
         if nodes.len() >= wanted || nodes.len() == before || splittable == 0 {
             break;
         }
-        // Close to the target: split the most populated nodes one by one.
+        // Close to the target: split the most populated nodes one by one (a max-heap on the
+        // corner count; children go back on the heap).
         if nodes.len() + splittable * 3 > wanted {
-            while nodes.len() < wanted {
-                nodes.sort_unstable_by_key(|n| std::cmp::Reverse(n.len()));
-                let Some(pos) = nodes
-                    .iter()
-                    .position(|n| n.len() > 1 && (n.x1 - n.x0) >= 1.0)
-                else {
+            heap.clear();
+            heap.extend(nodes.drain(..).map(ByLen));
+            while heap.len() + nodes.len() < wanted {
+                let Some(top) = heap.peek() else { break };
+                if top.0.len() <= 1 {
                     break;
-                };
-                let n = nodes.swap_remove(pos);
-                split(&n, idx, corners, nodes);
+                }
+                let Some(ByLen(n)) = heap.pop() else { break };
+                if n.x1 - n.x0 < 1.0 {
+                    // Too small to split: set aside (never split again).
+                    nodes.push(n);
+                    continue;
+                }
+                next.clear();
+                split(&n, idx, corners, next);
+                heap.extend(next.drain(..).map(ByLen));
             }
+            nodes.extend(heap.drain().map(|b| b.0));
             break;
         }
     }

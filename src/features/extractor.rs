@@ -3,11 +3,13 @@
 use super::brief::{describe, PatternPoints};
 use super::distribute::{distribute, QuadtreeScratch};
 use super::fast::{detect, Corner};
+use super::harris::harris_response;
 use super::helper::Helper;
 use super::orientation::{circle_umax, ic_angle, MomentWeights};
+use super::spread::{spread_by_radius, SpreadScratch};
 use super::{Features, KeyPoint};
 use crate::camera_model::PinholeRadtan;
-use crate::config::OrbConfig;
+use crate::config::{OrbConfig, OrbDistribution, OrbScore};
 use crate::image::{gaussian_blur_7x7, PaddedImage, Pyramid, PyramidConfig};
 
 /// Keypoints stay this far (level pixels) from the level's edge; the padded border covers the
@@ -17,6 +19,10 @@ const MIN_BORDER: usize = 16;
 const CELL: usize = 30;
 /// Padding of pyramid levels: FAST's wide loads (3 + LANES) and the rotated pattern (< 22 px).
 const PAD: usize = 3 + super::fast::LANES;
+/// Border pixels whose values are read: the 7x7 blur (3 px) and the rotated BRIEF pattern
+/// (< 19 px from a keypoint at least `MIN_BORDER` inside, so < 3 px). FAST's wide loads past
+/// the region only need the memory.
+const FILLED: usize = 8;
 
 /// Features wanted per level: a geometric series over levels summing to `n` (ORB-SLAM's rule).
 pub fn features_per_level(n: usize, scale_factor: f64, levels: usize) -> Vec<usize> {
@@ -45,6 +51,12 @@ struct Lane {
     cell_counts: Vec<u32>,
     scratch: QuadtreeScratch,
     selected: Vec<u32>,
+    /// Response of each selected corner, and the selected corners kept (indices into both).
+    responses: Vec<f32>,
+    order: Vec<u32>,
+    kept: Vec<u32>,
+    pts: Vec<(f32, f32)>,
+    spread: SpreadScratch,
     blur_tmp: Vec<u16>,
     out: Features,
     ranges: [(u32, u32); MAX_LEVELS],
@@ -60,6 +72,11 @@ impl Lane {
             cell_counts: vec![0; cells],
             scratch: QuadtreeScratch::with_capacity(width * height, n_features),
             selected: Vec::with_capacity(n_features * 2),
+            responses: Vec::with_capacity(n_features * 2),
+            order: Vec::with_capacity(n_features * 4),
+            kept: Vec::with_capacity(n_features * 4),
+            pts: Vec::with_capacity(n_features * 4),
+            spread: SpreadScratch::new(width, height, n_features * 4),
             blur_tmp: Vec::with_capacity((width + 16) * (height + 16)),
             out: Features::with_capacity(n_features),
             ranges: [(0, 0); MAX_LEVELS],
@@ -106,6 +123,7 @@ impl OrbExtractor {
                 levels: config.n_levels,
                 scale_factor: config.scale_factor,
                 pad: PAD,
+                filled: FILLED,
             },
         );
         let to_level0: Vec<(f64, f64)> = pyramid
@@ -298,30 +316,16 @@ fn extract_level(s: &Shared, l: usize, blurred: &mut PaddedImage, lane: &mut Lan
         }
     }
     let wanted = s.per_level[l];
-    // More nodes than wanted, then the strongest node winners: spread like ORB-SLAM's
-    // quadtree, but strong (repeatable) corners survive node boundaries moving.
-    let nodes = (wanted as f64 * s.config.quadtree_oversampling).round() as usize;
-    distribute(
-        &lane.corners,
-        (x0 as f32, y0 as f32, x1 as f32, y1 as f32),
-        nodes,
-        &mut lane.scratch,
-        &mut lane.selected,
-    );
-    if lane.selected.len() > wanted {
-        let corners = &lane.corners;
-        lane.selected
-            .sort_unstable_by_key(|&i| std::cmp::Reverse(corners[i as usize].score));
-        lane.selected.truncate(wanted);
-    }
-    if lane.selected.is_empty() {
+    select_corners(s, level, (x0, y0, x1, y1), wanted, lane);
+    if lane.order.is_empty() {
         return;
     }
-    gaussian_blur_7x7(level, blurred, &mut lane.blur_tmp);
+    gaussian_blur_7x7(level, blurred, &mut lane.blur_tmp, FILLED);
     let (sx, sy) = s.to_level0[l];
     let scale = s.scales[l] as f32;
-    for &i in &lane.selected {
-        let c = lane.corners[i as usize];
+    for &o in &lane.order {
+        let c = lane.corners[lane.selected[o as usize] as usize];
+        let response = lane.responses[o as usize];
         let (x, y) = (c.x as isize, c.y as isize);
         let angle = ic_angle(level, x, y, s.moments);
         lane.out
@@ -337,15 +341,115 @@ fn extract_level(s: &Shared, l: usize, blurred: &mut PaddedImage, lane: &mut Lan
             uy: py,
             octave: l as u8,
             angle,
-            response: c.score as f32,
+            response,
             size: 31.0 * scale,
         });
     }
 }
 
+/// Chooses the level's `wanted` corners: `lane.order` indexes `lane.selected` (indices into
+/// `lane.corners`) and `lane.responses`.
+#[inline(always)]
+fn select_corners(
+    s: &Shared,
+    level: &PaddedImage,
+    (x0, y0, x1, y1): (usize, usize, usize, usize),
+    wanted: usize,
+    lane: &mut Lane,
+) {
+    let region = (x0 as f32, y0 as f32, x1 as f32, y1 as f32);
+    let corners = &lane.corners;
+    let by_score = |a: &u32, b: &u32| {
+        corners[*b as usize]
+            .score
+            .cmp(&corners[*a as usize].score)
+            .then(a.cmp(b))
+    };
+    match s.config.distribution {
+        OrbDistribution::Quadtree => {
+            // More nodes than wanted, then the strongest node winners: spread like ORB-SLAM's
+            // quadtree, but strong (repeatable) corners survive node boundaries moving.
+            let nodes = (wanted as f64 * s.config.quadtree_oversampling).round() as usize;
+            distribute(
+                corners,
+                region,
+                nodes,
+                &mut lane.scratch,
+                &mut lane.selected,
+            );
+        }
+        OrbDistribution::Radius | OrbDistribution::Strongest => {
+            lane.selected.clear();
+            lane.selected.extend(0..corners.len() as u32);
+        }
+    }
+    // The response is computed for a bounded number of candidates: the strongest by FAST
+    // score (OpenCV's ORB keeps 2N by FAST score before ranking by Harris).
+    let pre = (wanted as f64 * s.config.candidates).ceil() as usize;
+    if lane.selected.len() > pre {
+        lane.selected.select_nth_unstable_by(pre, by_score);
+        lane.selected.truncate(pre);
+        lane.selected.sort_unstable();
+    }
+    lane.responses.clear();
+    match s.config.score_type {
+        OrbScore::Harris => lane.responses.extend(lane.selected.iter().map(|&i| {
+            let c = corners[i as usize];
+            harris_response(level, c.x as isize, c.y as isize)
+        })),
+        OrbScore::Fast => lane.responses.extend(
+            lane.selected
+                .iter()
+                .map(|&i| corners[i as usize].score as f32),
+        ),
+    }
+    // Strongest first (ties by position, deterministic).
+    lane.order.clear();
+    lane.order.extend(0..lane.selected.len() as u32);
+    let r = &lane.responses;
+    lane.order
+        .sort_unstable_by(|&a, &b| r[b as usize].total_cmp(&r[a as usize]).then(a.cmp(&b)));
+    match s.config.distribution {
+        OrbDistribution::Quadtree | OrbDistribution::Strongest => lane.order.truncate(wanted),
+        OrbDistribution::Radius => {
+            lane.pts.clear();
+            lane.pts.extend(
+                lane.selected
+                    .iter()
+                    .map(|&i| (corners[i as usize].x as f32, corners[i as usize].y as f32)),
+            );
+            spread_by_radius(
+                &lane.pts,
+                &lane.order,
+                region,
+                wanted,
+                &mut lane.spread,
+                &mut lane.kept,
+            );
+            std::mem::swap(&mut lane.order, &mut lane.kept);
+        }
+    }
+    lane.order.sort_unstable();
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_pixel_read_around_a_keypoint_lies_in_the_filled_border() {
+        // The rotated BRIEF pattern's reach (rounded outwards) plus the 7x7 blur's 3 pixels.
+        let reach = super::super::brief::pattern()
+            .iter()
+            .flat_map(|q| [(q[0], q[1]), (q[2], q[3])])
+            .map(|(x, y)| ((x as f64).hypot(y as f64)).ceil() as usize)
+            .max()
+            .unwrap_or(0);
+        assert!(reach < MIN_BORDER + FILLED, "pattern reach {reach}");
+        const { assert!(FILLED >= 3 && FILLED <= PAD) };
+        // Harris (4 + 1 px) and the orientation patch (radius 15) stay in the interior.
+        const { assert!(MIN_BORDER > 15 && MIN_BORDER > super::super::harris::HARRIS_BLOCK / 2 + 1) };
+    }
 
     #[test]
     fn per_level_counts_follow_orbslam() {

@@ -162,7 +162,8 @@ fn detect_avx2(
     out: &mut Vec<Corner>,
     score_map: &mut [u8],
 ) {
-    detect_lanes(img, threshold, region, out, score_map)
+    // SAFETY: AVX2 is enabled here; `detect` checked the pad, the region and the map size.
+    unsafe { super::fast_avx2::detect(img, threshold, region, out, score_map) }
 }
 
 /// Bit i set when lane i is non-zero.

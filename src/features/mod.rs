@@ -7,9 +7,13 @@ pub mod brief;
 mod distribute;
 mod extractor;
 pub mod fast;
+#[cfg(target_arch = "x86_64")]
+mod fast_avx2;
+pub mod harris;
 mod helper;
 pub mod orientation;
 pub mod quality;
+mod spread;
 
 pub use brief::Descriptor;
 pub use extractor::{features_per_level, OrbExtractor};

@@ -15,7 +15,12 @@ const fn gaussian_kernel() -> [u32; 7] {
 /// `tmp` holds the vertical pass (resized once). Both passes run in 16-bit lanes: the kernel sums
 /// to 256, so `255 * 256` fits; the intermediate is rounded to 8 bits (error <= 1 grey level).
 #[inline(always)]
-pub fn gaussian_blur_7x7(src: &PaddedImage, dst: &mut PaddedImage, tmp: &mut Vec<u16>) {
+pub fn gaussian_blur_7x7(
+    src: &PaddedImage,
+    dst: &mut PaddedImage,
+    tmp: &mut Vec<u16>,
+    filled: usize,
+) {
     let (w, h) = (src.width, src.height);
     debug_assert!(src.pad >= 3 && dst.width == w && dst.height == h);
     // Vertical pass first, over interior rows and 3 border columns each side (contiguous rows
@@ -50,7 +55,7 @@ pub fn gaussian_blur_7x7(src: &PaddedImage, dst: &mut PaddedImage, tmp: &mut Vec
             *o = ((acc + 128) >> 8) as u8;
         }
     }
-    dst.fill_border();
+    dst.fill_border_width(filled);
 }
 
 #[cfg(test)]
@@ -64,7 +69,7 @@ mod tests {
         a.copy_from(&[100; 200]);
         let mut b = PaddedImage::new(20, 10, 4);
         let mut t = Vec::new();
-        gaussian_blur_7x7(&a, &mut b, &mut t);
+        gaussian_blur_7x7(&a, &mut b, &mut t, 3);
         assert!(b.row(5).iter().all(|&v| v == 100));
     }
 
@@ -75,7 +80,7 @@ mod tests {
         let mut a = PaddedImage::new(21, 21, 4);
         a.copy_from(&img);
         let mut b = PaddedImage::new(21, 21, 4);
-        gaussian_blur_7x7(&a, &mut b, &mut Vec::new());
+        gaussian_blur_7x7(&a, &mut b, &mut Vec::new(), 3);
         assert_eq!(b.at(9, 10), b.at(11, 10));
         assert_eq!(b.at(10, 8), b.at(10, 12));
         assert!(b.at(10, 10) > b.at(11, 10) && b.at(11, 10) > b.at(12, 10));

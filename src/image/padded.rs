@@ -51,18 +51,30 @@ impl PaddedImage {
 
     /// Copies a tightly packed `width` x `height` image into the interior and fills the border.
     pub fn copy_from(&mut self, src: &[u8]) {
+        self.copy_interior_from(src);
+        self.fill_border();
+    }
+
+    /// Copies a tightly packed `width` x `height` image into the interior only.
+    pub fn copy_interior_from(&mut self, src: &[u8]) {
         let w = self.width;
         for y in 0..self.height {
             let s = &src[y * w..(y + 1) * w];
             self.row_mut(y).copy_from_slice(s);
         }
-        self.fill_border();
     }
 
     /// Fills the border by reflection about the edge pixel (OpenCV's BORDER_REFLECT_101), so
     /// gradients at the edge stay continuous.
     pub fn fill_border(&mut self) {
-        let (w, h, p, st) = (self.width, self.height, self.pad, self.stride);
+        self.fill_border_width(self.pad);
+    }
+
+    /// Fills the `k` pixels of border nearest the interior (at most the pad), by reflection;
+    /// the rest of the border keeps what it held. For readers that reach only `k` pixels out.
+    pub fn fill_border_width(&mut self, k: usize) {
+        let (w, h, st) = (self.width, self.height, self.stride);
+        let (p, pk) = (self.pad, k.min(self.pad));
         if w < 2 || h < 2 {
             return;
         }
@@ -80,23 +92,23 @@ impl PaddedImage {
                 }
             }
         };
-        if w > p {
-            // Common case: each side is the mirror image of the first `p` interior pixels.
+        if w > pk {
+            // Common case: each side is the mirror image of the first `pk` interior pixels.
             for y in 0..h {
                 let row = &mut self.data[(y + p) * st..(y + p + 1) * st];
                 let (left, rest) = row.split_at_mut(p);
-                for (k, v) in left.iter_mut().rev().enumerate() {
+                for (k, v) in left[p - pk..].iter_mut().rev().enumerate() {
                     *v = rest[k + 1];
                 }
                 let (inner, right) = rest.split_at_mut(w);
-                for (k, v) in right.iter_mut().enumerate() {
+                for (k, v) in right[..pk].iter_mut().enumerate() {
                     *v = inner[w - 2 - k];
                 }
             }
         } else {
-            self.fill_side_borders_small(reflect);
+            self.fill_side_borders_small(reflect, pk);
         }
-        for k in 1..=p {
+        for k in 1..=pk {
             let top = reflect(-(k as isize), h) + p;
             let bot = reflect((h - 1 + k) as isize, h) + p;
             self.data
@@ -107,11 +119,11 @@ impl PaddedImage {
     }
 
     /// Side borders when the pad is wider than the image (repeated reflection).
-    fn fill_side_borders_small(&mut self, reflect: impl Fn(isize, usize) -> usize) {
+    fn fill_side_borders_small(&mut self, reflect: impl Fn(isize, usize) -> usize, pk: usize) {
         let (w, h, p, st) = (self.width, self.height, self.pad, self.stride);
         for y in 0..h {
             let row = (y + p) * st;
-            for k in 1..=p {
+            for k in 1..=pk {
                 let l = reflect(-(k as isize), w);
                 let r = reflect((w - 1 + k) as isize, w);
                 self.data[row + p - k] = self.data[row + p + l];

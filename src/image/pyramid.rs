@@ -9,6 +9,9 @@ pub struct PyramidConfig {
     pub scale_factor: f64,
     /// Border kept around every level (must cover the rotated BRIEF pattern).
     pub pad: usize,
+    /// Pixels of that border filled by reflection each build (readers reaching further out
+    /// only need the memory, not its values).
+    pub filled: usize,
 }
 
 /// Levels (and their blurred copies) of one image, with per-level scale data.
@@ -23,10 +26,49 @@ pub struct Pyramid {
     pub sigma2: Vec<f64>,
     pub inv_sigma2: Vec<f64>,
     tmp: Vec<u16>,
-    /// Per destination column: source index and weight (8-bit) for the horizontal resample.
-    xmap: Vec<Vec<(u32, u16)>>,
     ymap: Vec<Vec<(u32, u16)>>,
-    row_tmp: Vec<u16>,
+    /// Per level: the horizontal resample as groups of 8 outputs (byte shuffle and weights).
+    xgroups: Vec<Vec<XGroup>>,
+    /// One vertically blended source row, with slack for 16-byte reads.
+    row_tmp: Vec<u8>,
+}
+
+/// 8 horizontally resampled outputs: source bytes `base + shuffle[2j]` and `+ shuffle[2j+1]`
+/// blended by `weights[2j]` and `weights[2j+1]` (7-bit fixed point, summing to 128).
+#[derive(Clone, Copy, Debug)]
+struct XGroup {
+    base: u32,
+    shuffle: [u8; 16],
+    weights: [i8; 16],
+}
+
+/// Groups of 8 outputs for one horizontal map. Both weights stay below 128 (they are signed
+/// bytes): a whole-pixel sample is written as the pixel twice at half weight.
+fn x_groups(xmap: &[(u32, u16)]) -> Vec<XGroup> {
+    xmap.chunks(8)
+        .map(|c| {
+            let base = c[0].0;
+            let mut g = XGroup {
+                base,
+                shuffle: [0; 16],
+                weights: [0; 16],
+            };
+            for (j, &(x0, w8)) in c.iter().enumerate() {
+                let w7 = (w8 as u32).div_ceil(2);
+                let o = (x0 - base) as u8;
+                let (a, b, wa, wb) = match w7 {
+                    0 => (o, o, 64, 64),
+                    128.. => (o + 1, o + 1, 64, 64),
+                    w => (o, o + 1, (128 - w) as i8, w as i8),
+                };
+                g.shuffle[2 * j] = a;
+                g.shuffle[2 * j + 1] = b;
+                g.weights[2 * j] = wa;
+                g.weights[2 * j + 1] = wb;
+            }
+            g
+        })
+        .collect()
 }
 
 impl Pyramid {
@@ -74,6 +116,7 @@ impl Pyramid {
             xmap.push(map(sizes[l - 1].0, sizes[l].0));
             ymap.push(map(sizes[l - 1].1, sizes[l].1));
         }
+        let xgroups = xmap.iter().map(|m| x_groups(m)).collect();
         Pyramid {
             config,
             levels,
@@ -83,9 +126,9 @@ impl Pyramid {
             sigma2,
             inv_sigma2,
             tmp: Vec::with_capacity((width + 8) * (height + 8)),
-            xmap,
             ymap,
-            row_tmp: Vec::with_capacity(width * 2),
+            xgroups,
+            row_tmp: Vec::with_capacity(width + 32),
         }
     }
 
@@ -96,55 +139,101 @@ impl Pyramid {
     /// Rebuilds every level (and blurred level) from a tightly packed level-0 image.
     #[inline(always)]
     pub fn build(&mut self, gray: &[u8]) {
-        self.levels[0].copy_from(gray);
+        let filled = self.config.filled;
+        self.levels[0].copy_interior_from(gray);
+        self.levels[0].fill_border_width(filled);
         for l in 1..self.levels.len() {
             let (prev, cur) = self.levels.split_at_mut(l);
             resample(
                 &prev[l - 1],
                 &mut cur[0],
-                &self.xmap[l],
+                &self.xgroups[l],
                 &self.ymap[l],
                 &mut self.row_tmp,
             );
-            cur[0].fill_border();
+            cur[0].fill_border_width(filled);
         }
     }
 
     /// Blurs every level (needed for descriptors only).
     pub fn blur(&mut self) {
         for l in 0..self.levels.len() {
-            gaussian_blur_7x7(&self.levels[l], &mut self.blurred[l], &mut self.tmp);
+            let filled = self.config.filled;
+            gaussian_blur_7x7(&self.levels[l], &mut self.blurred[l], &mut self.tmp, filled);
         }
     }
 }
 
 /// Bilinear downsampling with precomputed maps: blend the two source rows (contiguous, SIMD),
-/// then resample the blended row horizontally. `tmp` holds one blended row in 8.8 fixed point.
+/// then resample the blended row horizontally, 8 outputs per byte shuffle where the CPU has
+/// one (SSSE3, NEON) and the same arithmetic in scalar code elsewhere.
 #[inline(always)]
 fn resample(
     src: &PaddedImage,
     dst: &mut PaddedImage,
-    xmap: &[(u32, u16)],
+    groups: &[XGroup],
     ymap: &[(u32, u16)],
-    tmp: &mut Vec<u16>,
+    tmp: &mut Vec<u8>,
 ) {
     let sw = src.width;
-    // One spare entry: one-pixel-wide sources still read x0 + 1 (with weight 0).
-    tmp.resize(sw + 1, 0);
+    // Slack: each group reads 16 bytes from its base (<= sw - 1).
+    tmp.resize(sw + 16, 0);
+    let (dw, dpad, dstride) = (dst.width, dst.pad, dst.stride);
     for (y, &(y0, wy)) in ymap.iter().enumerate() {
         let y0 = y0 as usize;
         let (a, b) = (src.row(y0), src.row((y0 + 1).min(src.height - 1)));
         let (wa, wb) = (256 - wy, wy);
         for ((t, &pa), &pb) in tmp.iter_mut().zip(a).zip(b) {
-            *t = pa as u16 * wa + pb as u16 * wb;
+            *t = ((pa as u16 * wa + pb as u16 * wb + 128) >> 8) as u8;
         }
-        let out = dst.row_mut(y);
-        // The maps keep x0 + 1 inside the row (x0 <= max(width - 2, 0)).
-        for (o, &(x0, wx)) in out.iter_mut().zip(xmap) {
-            let pair = &tmp[x0 as usize..x0 as usize + 2];
-            let v = pair[0] as u32 * (256 - wx as u32) + pair[1] as u32 * wx as u32;
-            *o = ((v + (1 << 15)) >> 16) as u8;
+        // The row and up to 7 bytes of its right border (refilled after the build).
+        let start = (y + dpad) * dstride + dpad;
+        let out = &mut dst.data[start..start + dw + dpad.min(8)];
+        horizontal(tmp, groups, out, dw);
+    }
+}
+
+/// One row of the horizontal resample: `out[..n]` from the groups (`out` may have up to 7
+/// bytes of slack past `n`, which are overwritten).
+#[inline(always)]
+fn horizontal(tmp: &[u8], groups: &[XGroup], out: &mut [u8], n: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("ssse3") && out.len() >= groups.len() * 8 {
+        // SAFETY: SSSE3 is present; every group reads 16 bytes at base <= tmp.len() - 16 and
+        // writes 8 bytes at 8 g < out.len() - 7 (checked above).
+        unsafe { horizontal_ssse3(tmp, groups, out) };
+        return;
+    }
+    horizontal_scalar(tmp, groups, out, n)
+}
+
+fn horizontal_scalar(tmp: &[u8], groups: &[XGroup], out: &mut [u8], n: usize) {
+    for (g, grp) in groups.iter().enumerate() {
+        let src = &tmp[grp.base as usize..grp.base as usize + 16];
+        for j in 0..8.min(n - 8 * g) {
+            let a = src[grp.shuffle[2 * j] as usize] as i32 * grp.weights[2 * j] as i32;
+            let b = src[grp.shuffle[2 * j + 1] as usize] as i32 * grp.weights[2 * j + 1] as i32;
+            out[8 * g + j] = ((a + b + 64) >> 7) as u8;
         }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "ssse3")]
+unsafe fn horizontal_ssse3(tmp: &[u8], groups: &[XGroup], out: &mut [u8]) {
+    use std::arch::x86_64::*;
+    assert!(out.len() >= groups.len() * 8);
+    let round = _mm_set1_epi16(64);
+    for (g, grp) in groups.iter().enumerate() {
+        let src = &tmp[grp.base as usize..grp.base as usize + 16];
+        let v = _mm_loadu_si128(src.as_ptr() as *const __m128i);
+        let sh = _mm_loadu_si128(grp.shuffle.as_ptr() as *const __m128i);
+        let w = _mm_loadu_si128(grp.weights.as_ptr() as *const __m128i);
+        let pairs = _mm_shuffle_epi8(v, sh);
+        let sum = _mm_add_epi16(_mm_maddubs_epi16(pairs, w), round);
+        let px = _mm_packus_epi16(_mm_srli_epi16(sum, 7), _mm_setzero_si128());
+        let dst = &mut out[8 * g..8 * g + 8];
+        _mm_storel_epi64(dst.as_mut_ptr() as *mut __m128i, px);
     }
 }
 
@@ -157,6 +246,7 @@ mod tests {
             levels: 8,
             scale_factor: 1.2,
             pad: 24,
+            filled: 24,
         }
     }
 
@@ -189,6 +279,19 @@ mod tests {
             "{} vs {expect}",
             l1.at(x as isize, 10)
         );
+    }
+
+    #[test]
+    fn byte_shuffle_resample_equals_the_scalar_one() {
+        let p = Pyramid::new(640, 480, cfg());
+        let tmp: Vec<u8> = (0..640 + 16).map(|i| (i * 37 % 251) as u8).collect();
+        for g in &p.xgroups[1..] {
+            let n = (g.len() * 8).saturating_sub(3);
+            let (mut a, mut b) = (vec![0u8; g.len() * 8], vec![0u8; g.len() * 8]);
+            horizontal(&tmp, g, &mut a, n);
+            horizontal_scalar(&tmp, g, &mut b, n);
+            assert_eq!(a[..n], b[..n]);
+        }
     }
 
     #[test]

@@ -20,6 +20,13 @@ pub struct LocalMap {
     matches: Vec<Option<u32>>,
 }
 
+/// Grows `v`'s capacity to at least `n` (a no-op once it has).
+fn reserve_total<T>(v: &mut Vec<T>, n: usize) {
+    if v.capacity() < n {
+        v.reserve(n - v.len());
+    }
+}
+
 impl LocalMap {
     pub fn with_capacity(points: usize) -> Self {
         LocalMap {
@@ -34,6 +41,11 @@ impl LocalMap {
         let stamp = f.index + 1;
         self.kf_stamp.resize(map.config.max_keyframes, 0);
         self.pt_stamp.resize(map.config.max_map_points, 0);
+        // Sized once for the map's bounds, so a frame seeing more keyframes than any before
+        // does not allocate.
+        reserve_total(&mut self.keyframes, map.config.max_keyframes);
+        reserve_total(&mut self.counts, map.config.max_keyframes);
+        reserve_total(&mut self.points, map.config.max_map_points);
         self.keyframes.clear();
         self.counts.clear();
         // Keyframes observing the frame's points, with how many they share.
@@ -100,6 +112,8 @@ impl LocalMap {
         self.collect(t, map, f);
         let centre = f.t_cw.center();
         let (sf, nl) = (map.config.scale_factor, map.config.n_levels);
+        reserve_total(&mut self.projected, map.config.max_map_points);
+        reserve_total(&mut self.ids, map.config.max_map_points);
         self.projected.clear();
         self.ids.clear();
         for &mp in &self.points {
