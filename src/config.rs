@@ -24,11 +24,13 @@ pub struct OrbConfig {
     /// ORB-SLAM's distribution (most even, least repeatable); larger values favour strong,
     /// repeatable corners (see docs/DECISIONS.md for the measurements).
     pub quadtree_oversampling: f64,
-    /// Response ranking the quadtree's node winners (and reported as keypoint response):
-    /// `harris` (OpenCV's ORB default) or `fast` (the FAST threshold score).
+    /// Response ranking the node winners (and reported as keypoint response): `fast` (the
+    /// FAST threshold score, ORB-SLAM) or `harris` (OpenCV's ORB default).
     pub score_type: OrbScore,
-    /// How a level's corners are spread: `quadtree` (ORB-SLAM) or `radius` (strongest first
-    /// with the largest suppression radius that keeps the count).
+    /// How a level's corners are spread: `quadtree` (ORB-SLAM), `strongest` (no spreading,
+    /// OpenCV's ORB: most repeatable, but 2-3x the keyframe error on the synthetic sequences,
+    /// docs/DECISIONS.md) or `radius` (strongest first with the largest suppression radius
+    /// that keeps the count).
     pub distribution: OrbDistribution,
     /// Candidates per wanted feature whose response is computed (the strongest by FAST score).
     pub candidates: f64,
@@ -46,9 +48,9 @@ impl Default for OrbConfig {
             ini_th_fast: 20,
             min_th_fast: 7,
             quadtree_oversampling: 2.0,
-            score_type: OrbScore::Harris,
+            score_type: OrbScore::Fast,
             distribution: OrbDistribution::Quadtree,
-            candidates: 2.0,
+            candidates: 10.0,
             threads: 2,
         }
     }
@@ -252,6 +254,9 @@ impl Config {
         }
         if !(1.0..=100.0).contains(&self.orb.quadtree_oversampling) {
             return bad("orb.quadtree_oversampling", "must be in 1..=100");
+        }
+        if !(self.orb.candidates >= 1.0 && self.orb.candidates <= 1000.0) {
+            return bad("orb.candidates", "must be in 1..=1000");
         }
         if self.orb.min_th_fast > self.orb.ini_th_fast {
             return bad("orb.min_th_fast", "must not exceed orb.ini_th_fast");

@@ -17,6 +17,10 @@ ap.add_argument("--n", type=int, default=1000)
 ap.add_argument("--repeat", type=int, default=10)
 ap.add_argument("--json", action="store_true")
 ap.add_argument("--warp", help="9 comma-separated numbers: homography source -> warped (row-major)")
+ap.add_argument("--warp-with", choices=["sdslam", "opencv"], default="sdslam",
+                help="sdslam (default): the warped image is made exactly as `sdslam features --warp` "
+                     "makes it (float bilinear), so both extractors see the same images; "
+                     "opencv: cv2.warpPerspective (5-bit interpolation weights)")
 a = ap.parse_args()
 cv2.setNumThreads(1)
 orb = cv2.ORB_create(a.n, 1.2, 8)
@@ -34,12 +38,37 @@ mt, mc = statistics.median(times), statistics.median(counts)
 out = {"median_ms": mt, "features": mc, "images": len(a.images), "repeat": a.repeat}
 
 
+def warp_like_sdslam(img, H):
+    """sdslam's image::warp::warp_perspective: dst(x) = src(H^-1 x), float bilinear, rounded,
+    0 outside the source (inclusive of its last row and column)."""
+    import numpy as np
+    h, w = img.shape
+    inv = np.linalg.inv(H)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    p = inv @ np.stack([xs.ravel(), ys.ravel(), np.ones(w * h)])
+    sx, sy, z = p[0] / p[2], p[1] / p[2], p[2]
+    ok = (z > 0) & (sx >= 0) & (sy >= 0) & (sx <= w - 1) & (sy <= h - 1)
+    sx, sy = np.where(ok, sx, 0), np.where(ok, sy, 0)
+    x0, y0 = np.floor(sx).astype(int), np.floor(sy).astype(int)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = sx - x0, sy - y0
+    g = img.astype(np.float64)
+    v = (1 - fy) * ((1 - fx) * g[y0, x0] + fx * g[y0, x1]) + fy * ((1 - fx) * g[y1, x0] + fx * g[y1, x1])
+    # Rust's f64::round rounds half away from zero; values are >= 0 here.
+    out = np.clip(np.floor(v + 0.5), 0, 255).astype(np.uint8)
+    out[~ok] = 0
+    return out.reshape(h, w)
+
+
 def warp_quality(path, H, border=16.0, eps=2.5):
     """Same definition as sdslam's features::quality::warp_quality."""
     import numpy as np
     img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
     h, w = img.shape
-    warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR, borderValue=0)
+    if a.warp_with == "sdslam":
+        warped = warp_like_sdslam(img, H)
+    else:
+        warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR, borderValue=0)
     ka, da = orb.detectAndCompute(img, None)
     kb, db = orb.detectAndCompute(warped, None)
     pb = np.array([k.pt for k in kb])

@@ -28,7 +28,8 @@ impl Node {
 /// Reusable scratch for [`distribute`].
 #[derive(Default)]
 pub struct QuadtreeScratch {
-    idx: Vec<u32>,
+    /// The corners being partitioned, by value (no dependent loads while splitting).
+    idx: Vec<Slot>,
     nodes: Vec<Node>,
     next: Vec<Node>,
     heap: BinaryHeap<ByLen>,
@@ -71,32 +72,43 @@ impl QuadtreeScratch {
     }
 }
 
+/// A corner's position, and its score (high byte) over its index (low 24 bits), so the
+/// largest key is the strongest corner.
+#[derive(Clone, Copy, Debug)]
+struct Slot {
+    x: u16,
+    y: u16,
+    key: u32,
+}
+
+impl Slot {
+    fn index(&self) -> u32 {
+        self.key & 0x00ff_ffff
+    }
+}
+
 /// Partitions `idx[s..e]` so corners with `pred` true come first; returns the split point.
-fn partition(
-    idx: &mut [u32],
-    corners: &[Corner],
-    s: usize,
-    e: usize,
-    pred: impl Fn(&Corner) -> bool,
-) -> usize {
+/// Branch-free (the predicate is a coin toss on textured images): every element is swapped
+/// to the boundary and the boundary advances when it belongs to the first part.
+#[inline(always)]
+fn partition(idx: &mut [Slot], s: usize, e: usize, pred: impl Fn(&Slot) -> bool) -> usize {
     let mut i = s;
     for j in s..e {
-        if pred(&corners[idx[j] as usize]) {
-            idx.swap(i, j);
-            i += 1;
-        }
+        let v = idx[j];
+        idx.swap(i, j);
+        i += pred(&v) as usize;
     }
     i
 }
 
 /// Splits `n` into up to 4 non-empty children pushed to `out`.
-fn split(n: &Node, idx: &mut [u32], corners: &[Corner], out: &mut Vec<Node>) {
+fn split(n: &Node, idx: &mut [Slot], out: &mut Vec<Node>) {
     let mx = 0.5 * (n.x0 + n.x1);
     let my = 0.5 * (n.y0 + n.y1);
     let (s, e) = (n.start as usize, n.end as usize);
-    let ym = partition(idx, corners, s, e, |c| (c.y as f32) < my);
-    let xa = partition(idx, corners, s, ym, |c| (c.x as f32) < mx);
-    let xb = partition(idx, corners, ym, e, |c| (c.x as f32) < mx);
+    let ym = partition(idx, s, e, |c| (c.y as f32) < my);
+    let xa = partition(idx, s, ym, |c| (c.x as f32) < mx);
+    let xb = partition(idx, ym, e, |c| (c.x as f32) < mx);
     let kids = [
         (n.x0, n.y0, mx, my, s, xa),
         (mx, n.y0, n.x1, my, xa, ym),
@@ -137,7 +149,13 @@ pub fn distribute(
         heap,
     } = scratch;
     idx.clear();
-    idx.extend(0..corners.len() as u32);
+    // Indices fit 24 bits: at most one corner per pixel of a level (checked).
+    assert!(corners.len() < 1 << 24, "too many corners for the quadtree");
+    idx.extend(corners.iter().enumerate().map(|(i, c)| Slot {
+        x: c.x,
+        y: c.y,
+        key: (c.score as u32) << 24 | i as u32,
+    }));
     nodes.clear();
     // Initial nodes: roughly square, as many columns as the aspect ratio.
     let (w, h) = (x1 - x0, y1 - y0);
@@ -147,9 +165,7 @@ pub fn distribute(
     for i in 0..n_ini {
         let (a, b) = (x0 + hx * i as f32, x0 + hx * (i + 1) as f32);
         let last = i + 1 == n_ini;
-        let end = partition(idx, corners, start, corners.len(), |c| {
-            last || (c.x as f32) < b
-        });
+        let end = partition(idx, start, corners.len(), |c| last || (c.x as f32) < b);
         if end > start {
             nodes.push(Node {
                 x0: a,
@@ -171,7 +187,7 @@ pub fn distribute(
                 next.push(*n);
             } else {
                 let m = next.len();
-                split(n, idx, corners, next);
+                split(n, idx, next);
                 splittable += (next.len() - m > 1) as usize;
             }
         }
@@ -196,7 +212,7 @@ pub fn distribute(
                     continue;
                 }
                 next.clear();
-                split(&n, idx, corners, next);
+                split(&n, idx, next);
                 heap.extend(next.drain(..).map(ByLen));
             }
             nodes.extend(heap.drain().map(|b| b.0));
@@ -206,10 +222,17 @@ pub fn distribute(
     for n in nodes.iter() {
         let best = idx[n.start as usize..n.end as usize]
             .iter()
-            .copied()
-            .max_by_key(|&i| corners[i as usize].score)
-            .unwrap_or(idx[n.start as usize]);
-        selected.push(best);
+            .map(|c| c.key)
+            .max()
+            .unwrap_or(idx[n.start as usize].key);
+        selected.push(
+            Slot {
+                x: 0,
+                y: 0,
+                key: best,
+            }
+            .index(),
+        );
     }
     // Overshoot of the last split round: keep the strongest `wanted`.
     if selected.len() > wanted {

@@ -403,12 +403,20 @@ fn select_corners(
                 .map(|&i| corners[i as usize].score as f32),
         ),
     }
-    // Strongest first (ties by position, deterministic).
+    // Strongest first (ties by position, deterministic). Corners of the initial threshold
+    // come before the low-threshold fallback's: those only fill what the strong ones leave
+    // (their cells follow a fixed grid, so they are the least repeatable).
     lane.order.clear();
     lane.order.extend(0..lane.selected.len() as u32);
     let r = &lane.responses;
-    lane.order
-        .sort_unstable_by(|&a, &b| r[b as usize].total_cmp(&r[a as usize]).then(a.cmp(&b)));
+    let sel = &lane.selected;
+    let strong = |k: u32| corners[sel[k as usize] as usize].score >= s.config.ini_th_fast;
+    lane.order.sort_unstable_by(|&a, &b| {
+        strong(b)
+            .cmp(&strong(a))
+            .then(r[b as usize].total_cmp(&r[a as usize]))
+            .then(a.cmp(&b))
+    });
     match s.config.distribution {
         OrbDistribution::Quadtree | OrbDistribution::Strongest => lane.order.truncate(wanted),
         OrbDistribution::Radius => {
