@@ -94,11 +94,27 @@ impl Helper {
             slot.done = false;
             self.shared.posted.notify_one();
         }
-        /// Waits for the helper's `done` when dropped (so also when `here` panics).
+        /// Waits for the helper's `done` when dropped (so also when `here` panics). A job the
+        /// helper has not picked up yet (its thread not scheduled: both cores busy with local
+        /// BA, say) is taken back and run here instead of waited for.
         struct Wait<'a>(&'a Shared);
         impl Drop for Wait<'_> {
             fn drop(&mut self) {
                 let mut slot = lock(&self.0.slot);
+                if let Some(job) = slot.job.take() {
+                    drop(slot);
+                    // After a panic in `here` the other half is not run, only released.
+                    let ok = std::thread::panicking() || {
+                        // SAFETY: taken back from the slot, so the helper never sees it; the
+                        // closure lives on `join`'s stack until this guard is dropped.
+                        let f = unsafe { &mut *job.0 };
+                        std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).is_ok()
+                    };
+                    let mut slot = lock(&self.0.slot);
+                    slot.done = true;
+                    slot.panicked = !ok;
+                    return;
+                }
                 while !slot.done {
                     slot = self
                         .0
@@ -145,6 +161,24 @@ mod tests {
         }
         assert!(a.iter().all(|&v| v == 5050));
         assert!(b.iter().all(|&v| v == 10100));
+    }
+
+    #[test]
+    fn a_job_the_helper_has_not_started_runs_on_the_caller() {
+        // A helper whose thread never runs: every job is taken back by the caller.
+        let mut h = Helper {
+            shared: Arc::new(Shared::default()),
+            handle: None,
+        };
+        let (mut a, mut b) = (0, 0);
+        for _ in 0..3 {
+            h.join(|| a += 1, || b += 1);
+        }
+        assert_eq!((a, b), (3, 3));
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            h.join(|| panic!("boom"), || {})
+        }));
+        assert!(r.is_err(), "a panic in the stolen half reaches the caller");
     }
 
     #[test]
