@@ -241,6 +241,25 @@ pub fn distribute(
     }
 }
 
+/// Test data: `n` points (x, y, random word), 90% in a 100x100 corner of a 600x440 area.
+#[cfg(test)]
+pub(super) fn clustered_points(n: usize, seed: u64) -> Vec<(u32, u32, u32)> {
+    let mut s = seed;
+    (0..n)
+        .map(|i| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let r = (s >> 33) as u32;
+            if i % 10 == 0 {
+                (r % 600, (r / 600) % 440, r)
+            } else {
+                (r % 100, (r / 100) % 100, r)
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -248,24 +267,14 @@ mod tests {
     #[test]
     fn spreads_clustered_corners_and_respects_count() {
         // 2000 corners, 90% clustered in one corner of the image.
-        let mut corners = Vec::new();
-        let mut s = 1u64;
-        for i in 0..2000 {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            let r = (s >> 33) as u32;
-            let (x, y) = if i % 10 == 0 {
-                (r % 600, (r / 600) % 440)
-            } else {
-                (r % 100, (r / 100) % 100)
-            };
-            corners.push(Corner {
+        let corners: Vec<Corner> = clustered_points(2000, 1)
+            .into_iter()
+            .map(|(x, y, r)| Corner {
                 x: x as u16 + 20,
                 y: y as u16 + 20,
                 score: (r % 200) as u8 + 10,
-            });
-        }
+            })
+            .collect();
         let mut scratch = QuadtreeScratch::with_capacity(2000, 300);
         let mut sel = Vec::new();
         distribute(

@@ -129,20 +129,10 @@ mod tests {
     #[test]
     fn keeps_the_count_spreads_a_cluster_and_keeps_the_strongest() {
         // 2000 points, 90% in a 100x100 corner of a 600x440 region; order = strongest first.
-        let mut pts = Vec::new();
-        let mut s = 7u64;
-        for i in 0..2000 {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            let r = (s >> 33) as u32;
-            let (x, y) = if i % 10 == 0 {
-                (r % 600, (r / 600) % 440)
-            } else {
-                (r % 100, (r / 100) % 100)
-            };
-            pts.push((x as f32, y as f32));
-        }
+        let pts: Vec<(f32, f32)> = super::super::distribute::clustered_points(2000, 7)
+            .into_iter()
+            .map(|(x, y, _)| (x as f32, y as f32))
+            .collect();
         let order: Vec<u32> = (0..2000).collect();
         let mut scratch = SpreadScratch::new(600, 440, 2000);
         let mut out = Vec::new();
