@@ -194,9 +194,24 @@ fn nonzero_mask(v: &Lanes) -> u32 {
     }
 }
 
+/// Appends the corners of the lanes set in `keep`: row `y`, columns from `x`, with `scores`
+/// holding `score + 1` per lane (the score map's encoding).
+#[inline(always)]
+pub(super) fn emit_kept(mut keep: u32, scores: &Lanes, x: usize, y: usize, out: &mut Vec<Corner>) {
+    while keep != 0 {
+        let i = keep.trailing_zeros() as usize;
+        keep &= keep - 1;
+        out.push(Corner {
+            x: (x + i) as u16,
+            y: y as u16,
+            score: scores[i] - 1,
+        });
+    }
+}
+
 /// Lanes kept by the first `n` of `LANES` (n <= LANES).
 #[inline(always)]
-fn first_lanes(n: usize) -> u32 {
+pub(super) fn first_lanes(n: usize) -> u32 {
     if n >= 32 {
         u32::MAX
     } else {
@@ -316,15 +331,7 @@ fn suppress_row(map: &[u8], w: usize, y: usize, x0: usize, x1: usize, out: &mut 
                 }
             }
             keep &= nonzero_mask(&margin);
-            while keep != 0 {
-                let i = keep.trailing_zeros() as usize;
-                keep &= keep - 1;
-                out.push(Corner {
-                    x: (x + i) as u16,
-                    y: y as u16,
-                    score: s[i] - 1,
-                });
-            }
+            emit_kept(keep, &s, x, y, out);
         }
         x += LANES;
     }

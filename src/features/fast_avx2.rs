@@ -5,7 +5,7 @@
 
 use std::arch::x86_64::*;
 
-use super::fast::{Corner, Region, CIRCLE, LANES};
+use super::fast::{emit_kept, first_lanes, Corner, Region, CIRCLE, LANES};
 use crate::image::PaddedImage;
 
 /// Per lane: the best (over the 16 cyclic arcs of 9) of the smallest difference on the arc.
@@ -143,12 +143,7 @@ unsafe fn suppress_row(
     while x < x1 {
         let at = y * w + x;
         let s = load(map.as_ptr().add(at));
-        let valid = if x1 - x >= 32 {
-            u32::MAX
-        } else {
-            (1u32 << (x1 - x)) - 1
-        };
-        let mut keep = nonzero_mask(s) & valid;
+        let mut keep = nonzero_mask(s) & first_lanes(x1 - x);
         if keep != 0 {
             let mut margin = _mm256_set1_epi8(-1);
             for off in [
@@ -167,15 +162,7 @@ unsafe fn suppress_row(
             keep &= nonzero_mask(margin);
             let mut lanes = [0u8; LANES];
             _mm256_storeu_si256(lanes.as_mut_ptr() as *mut __m256i, s);
-            while keep != 0 {
-                let i = keep.trailing_zeros() as usize;
-                keep &= keep - 1;
-                out.push(Corner {
-                    x: (x + i) as u16,
-                    y: y as u16,
-                    score: lanes[i] - 1,
-                });
-            }
+            emit_kept(keep, &lanes, x, y, out);
         }
         x += LANES;
     }

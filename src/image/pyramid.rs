@@ -166,7 +166,7 @@ impl Pyramid {
 
 /// Bilinear downsampling with precomputed maps: blend the two source rows (contiguous, SIMD),
 /// then resample the blended row horizontally, 8 outputs per byte shuffle where the CPU has
-/// one (SSSE3, NEON) and the same arithmetic in scalar code elsewhere.
+/// one (SSSE3) and the same arithmetic in scalar code elsewhere (no NEON path yet).
 #[inline(always)]
 fn resample(
     src: &PaddedImage,
