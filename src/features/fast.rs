@@ -422,6 +422,39 @@ mod tests {
         assert_eq!(out, reference(&img, 20, (4, 4, 86, 36)));
     }
 
+    /// On smooth texture (box-blurred noise) most chunks hold corners of one polarity only,
+    /// the AVX2 single-network path; its corners and scores are still exact.
+    #[test]
+    fn smooth_texture_corners_are_exact() {
+        let (w, h) = (120usize, 60usize);
+        let noise = noise_image(w, h, 9);
+        let mut data = vec![0u8; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut sum = 0u32;
+                for dy in -2isize..=2 {
+                    for dx in -2isize..=2 {
+                        let xx = (x as isize + dx).clamp(0, w as isize - 1);
+                        let yy = (y as isize + dy).clamp(0, h as isize - 1);
+                        sum += noise.at(xx, yy) as u32;
+                    }
+                }
+                // Stretch the blurred values back over most of the byte range.
+                data[y * w + x] = ((sum as i32 / 25 - 128) * 5 + 128).clamp(0, 255) as u8;
+            }
+        }
+        let mut img = PaddedImage::new(w, h, 40);
+        img.copy_from(&data);
+        for t in [7u8, 20] {
+            let mut out = Vec::new();
+            let mut map = vec![0u8; w * h];
+            detect(&img, t, (4, 4, w - 4, h - 4), &mut out, &mut map);
+            let expect = reference(&img, t, (4, 4, w - 4, h - 4));
+            assert!(expect.len() > 20, "t {t}: {}", expect.len());
+            assert_eq!(out, expect, "t {t}");
+        }
+    }
+
     #[test]
     fn later_low_threshold_regions_are_suppressed_against_earlier_corners() {
         let img = noise_image(90, 40, 5);

@@ -55,20 +55,35 @@ unsafe fn chunk_scores(p: *const u8, offs: &[isize; 16], t: __m256i) -> __m256i 
         bright[k] = _mm256_subs_epu8(r, c);
         dark[k] = _mm256_subs_epu8(c, r);
     }
-    let cand = _mm256_max_epu8(compass_pairs(bright), compass_pairs(dark));
-    let over = _mm256_subs_epu8(cand, t);
+    let over_b = _mm256_subs_epu8(compass_pairs(bright), t);
+    let over_d = _mm256_subs_epu8(compass_pairs(dark), t);
+    let over = _mm256_or_si256(over_b, over_d);
     if _mm256_testz_si256(over, over) != 0 {
         return _mm256_setzero_si256();
     }
     let mut d = [_mm256_setzero_si256(); 16];
-    for k in 0..16 {
-        d[k] = _mm256_subs_epu8(load(p.offset(offs[k])), c);
-    }
-    let sb = best_arc_min(&d);
-    for k in 0..16 {
-        d[k] = _mm256_subs_epu8(c, load(p.offset(offs[k])));
-    }
-    let s = _mm256_max_epu8(sb, best_arc_min(&d));
+    let both = _mm256_min_epu8(over_b, over_d);
+    let s = if _mm256_testz_si256(both, both) != 0 {
+        // No lane can be both a bright and a dark corner candidate, and a lane that fails
+        // a polarity's compass test cannot be a corner of that polarity (its 9-arc would hold
+        // two adjacent compass points): one arc network on per-lane polarity suffices.
+        // Dark lanes use 255 - x on both sides, since (255 - r) - (255 - c) = c - r.
+        let flip = _mm256_cmpeq_epi8(over_b, _mm256_setzero_si256());
+        let cf = _mm256_xor_si256(c, flip);
+        for k in 0..16 {
+            d[k] = _mm256_subs_epu8(_mm256_xor_si256(load(p.offset(offs[k])), flip), cf);
+        }
+        best_arc_min(&d)
+    } else {
+        for k in 0..16 {
+            d[k] = _mm256_subs_epu8(load(p.offset(offs[k])), c);
+        }
+        let sb = best_arc_min(&d);
+        for k in 0..16 {
+            d[k] = _mm256_subs_epu8(c, load(p.offset(offs[k])));
+        }
+        _mm256_max_epu8(sb, best_arc_min(&d))
+    };
     // Keep s where s > t (unsigned): max(s, t + 1) == s.
     let t1 = _mm256_add_epi8(t, _mm256_set1_epi8(1));
     let keep = _mm256_cmpeq_epi8(_mm256_max_epu8(s, t1), s);
