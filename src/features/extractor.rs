@@ -1,6 +1,6 @@
 //! The ORB extractor: owns the pyramid and every scratch buffer for one image size.
 
-use super::brief::{describe, PatternPoints};
+use super::brief::{describe, Descriptor, PatternPoints};
 use super::distribute::{distribute, QuadtreeScratch};
 use super::fast::{detect, Corner};
 use super::harris::harris_response;
@@ -274,6 +274,17 @@ fn run_lane_portable(s: &Shared, mine: [Option<&mut PaddedImage>; MAX_LEVELS], l
     }
 }
 
+/// The steered descriptor with AVX2 gathers where the CPU has them (the same bits).
+#[inline(always)]
+fn describe_any(b: &PaddedImage, p: &PatternPoints, x: isize, y: isize, a: f32) -> Descriptor {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { super::brief::describe_avx2(b, p, x, y, a) };
+    }
+    describe(b, p, x, y, a)
+}
+
 #[inline(always)]
 fn extract_level(s: &Shared, l: usize, blurred: &mut PaddedImage, lane: &mut Lane) {
     let level = &s.levels[l];
@@ -330,7 +341,7 @@ fn extract_level(s: &Shared, l: usize, blurred: &mut PaddedImage, lane: &mut Lan
         let angle = ic_angle(level, x, y, s.moments);
         lane.out
             .descriptors
-            .push(describe(blurred, s.pattern, x, y, angle));
+            .push(describe_any(blurred, s.pattern, x, y, angle));
         // Level pixel centres map to level-0 positions through the resampling geometry.
         let px = ((c.x as f64 + 0.5) * sx - 0.5) as f32;
         let py = ((c.y as f64 + 0.5) * sy - 0.5) as f32;
