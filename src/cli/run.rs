@@ -358,6 +358,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     report.timing_ms.local_map_tracking = system.tracker.t_local_map.percentiles();
     report.timing_ms.relocalisation = system.tracker.t_relocalisation.percentiles();
     report.timing_ms.keyframe_insertion = system.stats.keyframe_insertion.percentiles();
+    report.timing_ms.map_lock_wait = system.stats.map_lock_wait.percentiles();
     report.tracked_frames = system.stats.tracked_frames;
     report.backfilled_frames = system.stats.backfilled_frames;
     report.lost_episodes = system.tracker.lost_episodes;

@@ -114,17 +114,14 @@ pub fn fuse_into(
     (added, merged)
 }
 
-/// Fuses the new keyframe with its neighbourhood (best covisibles and their best covisibles).
-pub fn search_in_neighbours(
-    map: &mut Map,
-    camera: &PinholeRadtan,
-    scales: &[f64],
+/// The keyframes to fuse with (best covisibles and their 5 best covisibles) and the new
+/// keyframe's points; `None` if it is gone.
+pub fn fusion_targets(
+    map: &Map,
     kf: KeyFrameId,
     n_neighbours: usize,
-) -> (usize, usize) {
-    let Some(k) = map.keyframe(kf) else {
-        return (0, 0);
-    };
+) -> Option<(Vec<KeyFrameId>, Vec<MapPointId>)> {
+    let k = map.keyframe(kf)?;
     let mut targets: Vec<KeyFrameId> = k.best_covisibles(n_neighbours).collect();
     let first = targets.clone();
     for t in first {
@@ -137,22 +134,26 @@ pub fn search_in_neighbours(
         }
     }
     let own: Vec<MapPointId> = k.observed().map(|(_, p)| p).collect();
-    let (mut added, mut merged) = (0, 0);
-    for &t in &targets {
-        let (a, m) = fuse_into(map, camera, scales, t, &own, 3.0);
-        added += a;
-        merged += m;
-    }
-    // And the neighbours' points into the new keyframe.
+    Some((targets, own))
+}
+
+/// The targets' points into the new keyframe, then its connections updated.
+pub fn fuse_neighbours_into(
+    map: &mut Map,
+    camera: &PinholeRadtan,
+    scales: &[f64],
+    kf: KeyFrameId,
+    targets: &[KeyFrameId],
+) -> (usize, usize) {
     let mut theirs: Vec<MapPointId> = Vec::new();
-    for &t in &targets {
+    for &t in targets {
         if let Some(tk) = map.keyframe(t) {
             theirs.extend(tk.observed().map(|(_, p)| p));
         }
     }
     theirs.sort();
     theirs.dedup();
-    let (a, m) = fuse_into(map, camera, scales, kf, &theirs, 3.0);
+    let r = fuse_into(map, camera, scales, kf, &theirs, 3.0);
     map.update_connections(kf);
-    (added + a, merged + m)
+    r
 }

@@ -42,6 +42,9 @@ impl Default for LocalMappingConfig {
     }
 }
 
+/// Runs a step of local mapping with the map (locked for the step, in threaded mode).
+pub type MapAccess<'a> = dyn FnMut(&mut dyn FnMut(&mut Map)) + 'a;
+
 pub struct LocalMapper {
     pub config: LocalMappingConfig,
     camera: PinholeRadtan,
@@ -83,7 +86,6 @@ impl LocalMapper {
         }
     }
 
-    /// Processes a keyframe just inserted by tracking (its observations already added).
     /// Processes a keyframe just inserted by tracking (its observations already added), all
     /// under the caller's access to the map (deterministic mode).
     pub fn process(&mut self, map: &mut Map, kf: KeyFrameId) {
@@ -96,26 +98,59 @@ impl LocalMapper {
     /// Phase 1 (map locked): geometry, connections, point culling, triangulation, and the local
     /// BA problem copied out of the map. Returns whether there is a BA to solve.
     pub fn prepare(&mut self, map: &mut Map, kf: KeyFrameId) -> bool {
-        let pts: Vec<MapPointId> = map
-            .keyframe(kf)
-            .map(|k| k.observed().map(|(_, p)| p).collect())
-            .unwrap_or_default();
-        for p in pts {
-            map.update_point_geometry(p);
+        self.prepare_in_steps(kf, &mut |f: &mut dyn FnMut(&mut Map)| f(map))
+    }
+
+    /// [`prepare`](Self::prepare) as a sequence of short steps, each run through `access`
+    /// (which locks the map for it): the start, one triangulation neighbour per step, then
+    /// fusion and the BA copy. A threaded caller releases the map between steps so tracking
+    /// never waits for a whole triangulation (10-20 ms with 20 neighbours). Tracking may
+    /// change the map between steps; every step re-reads what it uses.
+    pub fn prepare_in_steps(&mut self, kf: KeyFrameId, access: &mut MapAccess<'_>) -> bool {
+        let mut neighbours = Vec::new();
+        access(&mut |map: &mut Map| {
+            let pts: Vec<MapPointId> = map
+                .keyframe(kf)
+                .map(|k| k.observed().map(|(_, p)| p).collect())
+                .unwrap_or_default();
+            for p in pts {
+                map.update_point_geometry(p);
+            }
+            map.update_connections(kf);
+            self.cull_points(map, kf);
+            if let Some(k) = map.keyframe(kf) {
+                neighbours.extend(k.best_covisibles(self.config.triangulation_neighbours));
+            }
+        });
+        let mut created = Vec::new();
+        for &n in &neighbours {
+            access(&mut |map: &mut Map| self.triangulate_pair(map, kf, n, &mut created));
         }
-        map.update_connections(kf);
-        self.cull_points(map, kf);
-        self.triangulate(map, kf);
-        fusion::search_in_neighbours(
-            map,
-            &self.camera,
-            &self.scales,
-            kf,
-            self.config.triangulation_neighbours,
-        );
-        self.has_ba = map.n_keyframes() > 2 && self.build_local_ba(map, kf);
-        self.ba_epoch = map.correction_epoch();
-        self.has_ba
+        // Duplicate fusion: the new keyframe's points into each neighbour (a step each), then
+        // the neighbours' points into it.
+        let mut plan = None;
+        access(&mut |map: &mut Map| {
+            self.recent.extend(created.drain(..));
+            map.update_connections(kf);
+            plan = fusion::fusion_targets(map, kf, self.config.triangulation_neighbours);
+        });
+        if let Some((targets, own)) = plan {
+            for &t in &targets {
+                access(&mut |map: &mut Map| {
+                    fusion::fuse_into(map, &self.camera, &self.scales, t, &own, 3.0);
+                });
+            }
+            access(&mut |map: &mut Map| {
+                fusion::fuse_neighbours_into(map, &self.camera, &self.scales, kf, &targets);
+            });
+        }
+        let mut has_ba = false;
+        access(&mut |map: &mut Map| {
+            has_ba = map.n_keyframes() > 2 && self.build_local_ba(map, kf);
+            self.ba_epoch = map.correction_epoch();
+        });
+        self.has_ba = has_ba;
+        has_ba
     }
 
     /// Phase 2 (map not locked): local BA on the copied problem.
@@ -176,26 +211,32 @@ impl LocalMapper {
         self.recent = keep;
     }
 
-    fn triangulate(&mut self, map: &mut Map, kf: KeyFrameId) {
-        let Some(k1) = map.keyframe(kf) else { return };
-        let neighbours: Vec<KeyFrameId> = k1
-            .best_covisibles(self.config.triangulation_neighbours)
-            .collect();
-        self.triangulate_with(map, kf, &neighbours);
-    }
-
     /// Triangulates new points between `kf` and each of `neighbours` (unmatched keypoints,
     /// epipolar search, parallax/reprojection/scale checks), then updates `kf`'s connections.
     /// Also used with keyframes chosen by time when poses are given (offline densification).
     pub fn triangulate_with(&mut self, map: &mut Map, kf: KeyFrameId, neighbours: &[KeyFrameId]) {
-        let Some(k1) = map.keyframe(kf) else { return };
-        let t1 = k1.t_cw;
-        let c1 = t1.center();
         let mut created = Vec::new();
         for &n in neighbours {
+            self.triangulate_pair(map, kf, n, &mut created);
+        }
+        self.recent.extend(created);
+        map.update_connections(kf);
+    }
+
+    /// Triangulates new points between `kf` and neighbour `n`, appending them to `created`.
+    fn triangulate_pair(
+        &mut self,
+        map: &mut Map,
+        kf: KeyFrameId,
+        n: KeyFrameId,
+        created: &mut Vec<MapPointId>,
+    ) {
+        let new_pts = {
             let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(n)) else {
-                continue;
+                return;
             };
+            let t1 = k1.t_cw;
+            let c1 = t1.center();
             // Baseline against the neighbour's scene depth (monocular: skip tiny baselines).
             let baseline = (k2.t_cw.center() - c1).norm();
             let depths: Vec<f64> = k2
@@ -208,11 +249,11 @@ impl LocalMapper {
                 let mut d = depths.clone();
                 d.sort_by(|a, b| a.total_cmp(b));
                 if baseline / d[d.len() / 2] < 0.01 {
-                    continue;
+                    return;
                 }
             }
             let Some(f21) = fundamental_from_poses(&self.k, &t1, &self.k, &k2.t_cw) else {
-                continue;
+                return;
             };
             let epi = k2.t_cw.transform(&c1);
             let epipole = (epi.z > 1e-9).then(|| {
@@ -271,28 +312,27 @@ impl LocalMapper {
                 }
                 new_pts.push((i, j, pw));
             }
-            for (i, j, pw) in new_pts {
-                // A keypoint may have been taken by a previous neighbour in this loop.
-                if map
-                    .keyframe(kf)
-                    .is_some_and(|k| k.points[i as usize].is_some())
-                    || map
-                        .keyframe(n)
-                        .is_some_and(|k| k.points[j as usize].is_some())
-                {
-                    continue;
-                }
-                let Ok(p) = map.insert_point(pw, kf) else {
-                    return;
-                };
-                map.add_observation(p, kf, i as usize);
-                map.add_observation(p, n, j as usize);
-                map.update_point_geometry(p);
-                created.push(p);
+            new_pts
+        };
+        for (i, j, pw) in new_pts {
+            // A keypoint may have been taken by a previous neighbour in this loop.
+            if map
+                .keyframe(kf)
+                .is_some_and(|k| k.points[i as usize].is_some())
+                || map
+                    .keyframe(n)
+                    .is_some_and(|k| k.points[j as usize].is_some())
+            {
+                continue;
             }
+            let Ok(p) = map.insert_point(pw, kf) else {
+                return;
+            };
+            map.add_observation(p, kf, i as usize);
+            map.add_observation(p, n, j as usize);
+            map.update_point_geometry(p);
+            created.push(p);
         }
-        self.recent.extend(created);
-        map.update_connections(kf);
     }
 
     fn build_local_ba(&mut self, map: &Map, kf: KeyFrameId) -> bool {

@@ -13,6 +13,9 @@ pub struct TimingReport {
     /// Motion-model (or reference-keyframe) matching and pose optimisation.
     pub pose_prediction: Percentiles,
     pub local_map_tracking: Percentiles,
+    /// Tracking waiting for the map lock (held by local mapping, loop closing or semi-dense
+    /// copies): the part of a slow frame that is not tracking's own work.
+    pub map_lock_wait: Percentiles,
     /// On the tracking thread, when a keyframe is made (inline mode: includes local mapping).
     pub keyframe_insertion: Percentiles,
     pub relocalisation: Percentiles,

@@ -71,6 +71,8 @@ pub struct SystemStats {
     /// Making a keyframe on the tracking thread (map insertion, observations, database).
     pub keyframe_insertion: StageTimer,
     pub local_mapping: StageTimer,
+    /// Waiting for the map lock per frame.
+    pub map_lock_wait: StageTimer,
 }
 
 /// Locks the map; a panicked mapping thread must not take tracking down with it.
@@ -139,6 +141,7 @@ impl System {
             database: KeyFrameDatabase::new(vocabulary.as_ref().map_or(0, |v| v.n_words())),
             keys: HashMap::new(),
         }));
+        let gate = ForegroundGate::default();
         let mapping = if threaded {
             spawn_mapper(
                 camera,
@@ -148,6 +151,7 @@ impl System {
                 config.runtime.mapping_cpus.clone(),
                 Arc::clone(&places),
                 config.map.global_ba_after_loop,
+                gate.clone(),
             )
         } else {
             Mapping::Inline(Box::new((
@@ -155,7 +159,6 @@ impl System {
                 LoopCloser::new(camera, &scales),
             )))
         };
-        let gate = ForegroundGate::default();
         let semidense = if config.semidense.enabled {
             let k = Intrinsics {
                 fx: camera.fx,
@@ -219,6 +222,7 @@ impl System {
                 final_ba_ms: 0.0,
                 keyframe_insertion: StageTimer::with_capacity(expected_frames.max(16)),
                 local_mapping: StageTimer::with_capacity(expected_frames.max(16)),
+                map_lock_wait: StageTimer::with_capacity(expected_frames.max(16)),
             },
             camera,
             extractor,
@@ -426,7 +430,9 @@ impl System {
         f.reset_matches();
         // The map is locked for tracking only (extraction runs unlocked).
         let map_arc = Arc::clone(&self.map);
+        let tl = Instant::now();
         let mut map_guard = lock(&map_arc);
+        self.stats.map_lock_wait.record(tl.elapsed());
         let map = &mut *map_guard;
         let mut new_keyframe = false;
         let state = if self.tracker.state == TrackingState::NotInitialised {

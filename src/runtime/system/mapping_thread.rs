@@ -64,8 +64,9 @@ impl Mapping {
     }
 }
 
-/// Starts the local-mapping thread: per keyframe, prepare under the lock, BA without it, write
-/// back under the lock, then pass the keyframe to loop closing. Exits when the channel closes
+/// Starts the local-mapping thread: per keyframe, prepare in short steps under the lock (each
+/// after the frame being tracked, if any), BA without it, write back under the lock, then pass
+/// the keyframe to loop closing. Exits when the channel closes
 /// (after draining it), hanging up on the loop-closing thread.
 pub(super) fn spawn_mapper(
     camera: PinholeRadtan,
@@ -75,6 +76,7 @@ pub(super) fn spawn_mapper(
     cpus: Vec<usize>,
     places: Arc<Mutex<PlaceIndex>>,
     global_ba_after_loop: bool,
+    gate: crate::runtime::ForegroundGate,
 ) -> Mapping {
     let mut mapper = LocalMapper::new(camera, scales);
     let (tx, rx) = bounded::<KeyFrameId>(8);
@@ -108,10 +110,16 @@ pub(super) fn spawn_mapper(
                 crate::runtime::faults::maybe_panic("panic:local_mapping", n);
                 idle_t.store(false, Ordering::Release);
                 let t = Instant::now();
-                let has_ba = mapper.prepare(&mut lock(&map), kf);
+                // The map is locked per step, and each step first lets a frame being
+                // tracked finish (tracking would otherwise wait for the lock).
+                let has_ba = mapper.prepare_in_steps(kf, &mut |step: &mut dyn FnMut(&mut Map)| {
+                    gate.wait();
+                    step(&mut lock(&map))
+                });
                 if has_ba {
                     mapper.solve();
                 }
+                gate.wait();
                 mapper.finish(&mut lock(&map), kf);
                 timer.record(t.elapsed());
                 match (&loop_tx, &mut own) {
