@@ -130,7 +130,7 @@ impl LocalMapper {
         // the neighbours' points into it.
         let mut plan = None;
         access(&mut |map: &mut Map| {
-            self.recent.extend(created.drain(..));
+            self.recent.append(&mut created);
             map.update_connections(kf);
             plan = fusion::fusion_targets(map, kf, self.config.triangulation_neighbours);
         });

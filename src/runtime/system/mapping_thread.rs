@@ -68,6 +68,7 @@ impl Mapping {
 /// after the frame being tracked, if any), BA without it, write back under the lock, then pass
 /// the keyframe to loop closing. Exits when the channel closes
 /// (after draining it), hanging up on the loop-closing thread.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn spawn_mapper(
     camera: PinholeRadtan,
     scales: &[f64],
