@@ -111,6 +111,14 @@ pub struct SemiDenseConfig {
     /// match inside the window instead of an outlier, which on `desk` gave ~10% more points
     /// but 0.9-1.2% outliers (0.65-0.9% without) for only ~5% less depth-stage time.
     pub consensus_window: bool,
+    /// Regional prior (not in the paper, see `semidense::prior`): cell side in pixels of the
+    /// grid whose cells search only the inverse depths of the ORB map points around them
+    /// (widened by `prior_margin`, within the paper's interval); 0 = the paper's one interval.
+    pub prior_cell_px: usize,
+    /// Relative widening of a cell's [min, max] map-point inverse depth.
+    pub prior_margin: f64,
+    /// Map points needed in a cell and its 8 neighbours for a regional range.
+    pub prior_min_points: usize,
     /// Nice value added to the semi-dense threads (Linux), so tracking always wins a core.
     pub nice: i32,
     /// Run the semi-dense threads in Linux's SCHED_IDLE class (only on otherwise idle CPUs;
@@ -142,6 +150,9 @@ impl Default for SemiDenseConfig {
             threads: 2,
             max_similarity_error: 5.99,
             consensus_window: false,
+            prior_cell_px: 0,
+            prior_margin: 0.25,
+            prior_min_points: 6,
             nice: 10,
             sched_idle: true,
             yield_to_tracking: true,
@@ -274,6 +285,12 @@ impl Config {
                 "must be a positive number",
             );
         }
+        if !(sd.prior_margin >= 0.0 && sd.prior_margin < 1.0) {
+            return bad("semidense.prior_margin", "must be in [0, 1)");
+        }
+        if sd.prior_cell_px != 0 && !(4..=1024).contains(&sd.prior_cell_px) {
+            return bad("semidense.prior_cell_px", "must be 0 (off) or 4..=1024");
+        }
         if sd.n_neighbours == 0 || sd.lambda_n == 0 || sd.threads == 0 {
             return bad(
                 "semidense",
@@ -335,5 +352,11 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("orb.scale_factor"), "{e}");
+        for bad in ["prior_margin = 1.5", "prior_cell_px = 2"] {
+            let e = Config::parse(&format!("[semidense]\n{bad}\n"), Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("semidense.prior_"), "{e}");
+        }
     }
 }

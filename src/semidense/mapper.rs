@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use super::{
     median_rotation, prior_range, DepthPixel, InterChecker, Intrinsics, KeyframeReconstructor,
-    MAX_NEIGHBOURS,
+    RegionalPrior, MAX_NEIGHBOURS,
 };
 use crate::config::SemiDenseConfig;
 use crate::geometry::CameraFromWorld;
@@ -144,6 +144,9 @@ pub struct SemiDenseMapper {
     gray_nb: Vec<Vec<u8>>,
     scratch_f32: Vec<f32>,
     scratch_pixels: Vec<DepthPixel>,
+    /// The reference keyframe's regional prior (`[semidense] prior_cell_px`), built under
+    /// the map lock with the keyframe-wide one.
+    prior: RegionalPrior,
     pub stats: SemiDenseStats,
     pub t_depth: StageTimer,
     pub t_intra: StageTimer,
@@ -182,6 +185,7 @@ impl SemiDenseMapper {
             gray_nb: (0..n).map(|_| Vec::with_capacity(width * height)).collect(),
             scratch_f32: Vec::with_capacity(max_features.max(64)),
             scratch_pixels: Vec::with_capacity(width * height),
+            prior: RegionalPrior::new(width, height, config.prior_cell_px),
             stats: SemiDenseStats::default(),
             t_depth: timer(),
             t_intra: timer(),
@@ -285,7 +289,7 @@ impl SemiDenseMapper {
                 let gray = n.staged.then(|| &self.gray_nb[k][..]);
                 r.add_neighbour(n.serial, gray, &n.t_ji, n.delta_theta);
             }
-            r.reconstruct(rho_range)
+            r.reconstruct_with(rho_range, Some(&self.prior))
         };
         self.reconstructor.export(&mut self.scratch_pixels);
         let start = self.arena.len();
@@ -357,14 +361,18 @@ impl SemiDenseMapper {
         // Prior from the ORB map points' inverse depths in this keyframe; a spread of them
         // (every few) anchors the keyframe's depth scale.
         self.scratch_f32.clear();
+        self.prior.clear();
         let mut anchors = heapless::Vec::new();
         let n_obs = k.observed().count();
         let stride = n_obs.div_ceil(MAX_ANCHORS).max(1);
-        for (n, (_, mp)) in k.observed().enumerate() {
+        for (n, (i, mp)) in k.observed().enumerate() {
             if let Some(p) = map.point(mp) {
                 let z = k.t_cw.transform(&p.position).z;
                 if z > 0.0 && self.scratch_f32.len() < self.scratch_f32.capacity() {
                     self.scratch_f32.push((1.0 / z) as f32);
+                }
+                if let (true, Some(kp)) = (z > 0.0, k.keypoints.get(i)) {
+                    self.prior.add(kp.ux, kp.uy, (1.0 / z) as f32);
                 }
                 if z > 0.0 && n % stride == 0 {
                     let x = k.t_cw.transform(&p.position);
@@ -373,6 +381,11 @@ impl SemiDenseMapper {
             }
         }
         let rho_range = prior_range(&self.scratch_f32)?;
+        self.prior.finish(
+            rho_range,
+            self.config.prior_min_points,
+            self.config.prior_margin,
+        );
         let mut neighbours = heapless::Vec::new();
         let max_n = self.reconstructor.max_neighbours();
         let mut angles = std::mem::take(&mut self.scratch_f32);

@@ -14,6 +14,7 @@ mod inter;
 mod intra;
 mod mapper;
 mod offline;
+mod prior;
 mod reconstructor;
 mod scan;
 
@@ -24,6 +25,7 @@ pub use inter::InterChecker;
 pub use intra::check_smooth_grow_row;
 pub use mapper::{KeyframeDepth, SemiDenseMapper, SemiDenseStats};
 pub use offline::Densifier;
+pub use prior::RegionalPrior;
 pub use reconstructor::{KeyframeReconstructor, StageTimes, MAX_NEIGHBOURS};
 
 /// One pixel's inverse-depth estimate N(rho, sigma^2); `idx` = y * width + x.

@@ -12,7 +12,7 @@ use super::epipolar::{Hypothesis, Intrinsics, SearchParams, StereoPair};
 use super::fusion::fuse;
 use super::gradients::GradientImage;
 use super::intra::check_smooth_grow_row;
-use super::DepthPixel;
+use super::{DepthPixel, RegionalPrior};
 use crate::config::SemiDenseConfig;
 use crate::geometry::Se3;
 
@@ -206,6 +206,15 @@ impl KeyframeReconstructor {
     /// Reconstructs the reference keyframe for inverse depths in `rho_range`; the result is
     /// read with [`export`](Self::export).
     pub fn reconstruct(&mut self, rho_range: (f64, f64)) -> StageTimes {
+        self.reconstruct_with(rho_range, None)
+    }
+
+    /// [`reconstruct`](Self::reconstruct) with per-region ranges inside `rho_range`.
+    pub fn reconstruct_with(
+        &mut self,
+        rho_range: (f64, f64),
+        prior: Option<&RegionalPrior>,
+    ) -> StageTimes {
         let t0 = Instant::now();
         let (w, h) = (self.width, self.height);
         let mut neighbours: heapless::Vec<&GradientImage, MAX_NEIGHBOURS> = heapless::Vec::new();
@@ -221,6 +230,7 @@ impl KeyframeReconstructor {
             neighbours: &neighbours[..],
             pairs: &self.pairs,
             rho_range,
+            prior: prior.filter(|p| p.enabled()),
             pixels: AtomicU64::new(0),
             samples: AtomicU64::new(0),
         };
@@ -327,6 +337,8 @@ struct DepthContext<'a> {
     neighbours: &'a [&'a GradientImage],
     pairs: &'a [StereoPair],
     rho_range: (f64, f64),
+    /// Per-region ranges (inside `rho_range`), when on.
+    prior: Option<&'a RegionalPrior>,
     pixels: AtomicU64,
     samples: AtomicU64,
 }
@@ -348,6 +360,7 @@ impl DepthContext<'_> {
             }
             let p = &self.reference.at(x, y);
             pixels += 1;
+            let rho_range = self.prior.map_or(self.rho_range, |p| p.range(x, y));
             let mut n = 0;
             let total = self.pairs.len();
             let mut window = None;
@@ -361,7 +374,7 @@ impl DepthContext<'_> {
                     x as f64,
                     y as f64,
                     p,
-                    self.rho_range,
+                    rho_range,
                     window,
                     img,
                     &mut samples,
