@@ -56,7 +56,7 @@ impl RegionalPrior {
 
     /// A map point seen at pixel (u, v) with inverse depth `rho`.
     pub fn add(&mut self, u: f32, v: f32, rho: f32) {
-        if !self.enabled() || !(u >= 0.0 && v >= 0.0 && rho > 0.0 && rho.is_finite()) {
+        if !(self.enabled() && u >= 0.0 && v >= 0.0 && rho > 0.0 && rho.is_finite()) {
             return;
         }
         let (cx, cy) = (u as usize / self.cell, v as usize / self.cell);
