@@ -512,12 +512,14 @@ impl SemiDenseMapper {
         let (start, len, scale) = (me.start, me.len, me.scale);
         let lambda_n = self.config.lambda_n;
         let inter = &self.inter;
-        for p in &mut self.arena[start..start + len] {
-            // Checked in today's scale, stored in the reconstruction's (as `raw`).
-            p.rho = inter
-                .check(p.raw.idx, p.raw.rho / scale, lambda_n)
-                .map_or(0.0, |rho| rho * scale);
-        }
+        // Pixels are independent: checked in the worker pool, a few rows' worth per task.
+        self.reconstructor
+            .par_for_each(&mut self.arena[start..start + len], 2048, |p| {
+                // Checked in today's scale, stored in the reconstruction's (as `raw`).
+                p.rho = inter
+                    .check(p.raw.idx, p.raw.rho / scale, lambda_n)
+                    .map_or(0.0, |rho| rho * scale);
+            });
         let dt = t0.elapsed();
         self.stats.busy_s += dt.as_secs_f64();
         self.t_inter.record(dt);

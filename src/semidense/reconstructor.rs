@@ -198,6 +198,22 @@ impl KeyframeReconstructor {
         self.neighbours.len()
     }
 
+    /// Runs `f` on every item, `chunk` items per task in the worker pool when there is one
+    /// (each task first waits while tracking is busy, like the rows of the depth stage).
+    pub fn par_for_each<T: Send>(&self, items: &mut [T], chunk: usize, f: impl Fn(&mut T) + Sync) {
+        let gate = self.gate.as_ref();
+        let run = |c: &mut [T]| {
+            if let Some(g) = gate {
+                g.wait();
+            }
+            c.iter_mut().for_each(&f)
+        };
+        match self.pool.as_ref() {
+            Some(p) => p.install(|| items.par_chunks_mut(chunk.max(1)).for_each(run)),
+            None => items.chunks_mut(chunk.max(1)).for_each(run),
+        }
+    }
+
     /// Rows wait (between rows) while `gate` says tracking is busy.
     pub fn set_foreground_gate(&mut self, gate: crate::runtime::ForegroundGate) {
         self.gate = Some(gate);
