@@ -253,20 +253,44 @@ fn chunk_scores(data: &[u8], at: usize, offs: &[isize; 16], t: u8) -> Lanes {
         bright[k] = sub_sat(&compass[k], &c);
         dark[k] = sub_sat(&c, &compass[k]);
     }
-    let cand = max(&compass_pairs(&bright), &compass_pairs(&dark));
     let mut tl = [0u8; LANES];
     tl.fill(t);
-    if nonzero_mask(&sub_sat(&cand, &tl)) == 0 {
+    let over_b = sub_sat(&compass_pairs(&bright), &tl);
+    let over_d = sub_sat(&compass_pairs(&dark), &tl);
+    if nonzero_mask(&max(&over_b, &over_d)) == 0 {
         return [0; LANES];
     }
-    let mut bright = [[0u8; LANES]; 16];
-    let mut dark = [[0u8; LANES]; 16];
-    for k in 0..16 {
-        let r = load(data, (at as isize + offs[k]) as usize);
-        bright[k] = sub_sat(&r, &c);
-        dark[k] = sub_sat(&c, &r);
-    }
-    let s = max(&best_arc_min(&bright), &best_arc_min(&dark));
+    let s = if nonzero_mask(&min(&over_b, &over_d)) == 0 {
+        // No lane is a candidate of both polarities, and a lane failing a polarity's compass
+        // test cannot be a corner of that polarity: one arc network on per-lane polarity
+        // (dark lanes as 255 - x on both sides, since (255 - r) - (255 - c) = c - r).
+        let mut flip = [0u8; LANES];
+        for i in 0..LANES {
+            flip[i] = if over_b[i] == 0 { 255 } else { 0 };
+        }
+        let mut cf = c;
+        for i in 0..LANES {
+            cf[i] ^= flip[i];
+        }
+        let mut d = [[0u8; LANES]; 16];
+        for (k, dk) in d.iter_mut().enumerate() {
+            let mut r = load(data, (at as isize + offs[k]) as usize);
+            for i in 0..LANES {
+                r[i] ^= flip[i];
+            }
+            *dk = sub_sat(&r, &cf);
+        }
+        best_arc_min(&d)
+    } else {
+        let mut bright = [[0u8; LANES]; 16];
+        let mut dark = [[0u8; LANES]; 16];
+        for k in 0..16 {
+            let r = load(data, (at as isize + offs[k]) as usize);
+            bright[k] = sub_sat(&r, &c);
+            dark[k] = sub_sat(&c, &r);
+        }
+        max(&best_arc_min(&bright), &best_arc_min(&dark))
+    };
     let mut o = [0u8; LANES];
     for i in 0..LANES {
         o[i] = if s[i] > t { s[i] } else { 0 };
@@ -423,7 +447,7 @@ mod tests {
     }
 
     /// On smooth texture (box-blurred noise) most chunks hold corners of one polarity only,
-    /// the AVX2 single-network path; its corners and scores are still exact.
+    /// the single-network path (AVX2 and portable); its corners and scores are still exact.
     #[test]
     fn smooth_texture_corners_are_exact() {
         let (w, h) = (120usize, 60usize);
@@ -452,6 +476,10 @@ mod tests {
             let expect = reference(&img, t, (4, 4, w - 4, h - 4));
             assert!(expect.len() > 20, "t {t}: {}", expect.len());
             assert_eq!(out, expect, "t {t}");
+            // The portable lanes (other CPUs) take the same one-network path.
+            let (mut lanes, mut map) = (Vec::new(), vec![0u8; w * h]);
+            detect_lanes(&img, t, (4, 4, w - 4, h - 4), &mut lanes, &mut map);
+            assert_eq!(lanes, expect, "portable, t {t}");
         }
     }
 
