@@ -71,6 +71,13 @@ impl Default for PatternPoints {
     }
 }
 
+/// sin and cos of the keypoint angle in 12-bit fixed point (the pattern's rotation).
+#[inline(always)]
+fn steer(angle_deg: f32) -> (i32, i32) {
+    let (s, c) = angle_deg.to_radians().sin_cos();
+    ((s * 4096.0).round() as i32, (c * 4096.0).round() as i32)
+}
+
 /// Computes the steered descriptor of the keypoint at level coordinates (x, y) with `angle` in
 /// degrees, sampling `blurred`. The pattern is rotated in 12-bit fixed point (rounding half up),
 /// all 512 offsets first, then the 256 comparisons.
@@ -82,8 +89,7 @@ pub fn describe(
     y: isize,
     angle_deg: f32,
 ) -> Descriptor {
-    let (s, c) = angle_deg.to_radians().sin_cos();
-    let (s, c) = ((s * 4096.0).round() as i32, (c * 4096.0).round() as i32);
+    let (s, c) = steer(angle_deg);
     let st = blurred.stride as i32;
     // Offsets from the top-left of a 45 x 45 window centred on the keypoint: every rotated
     // point lies within 22 pixels of the centre, inside the padded image.
@@ -125,8 +131,7 @@ pub unsafe fn describe_avx2(
     angle_deg: f32,
 ) -> Descriptor {
     use std::arch::x86_64::*;
-    let (s, c) = angle_deg.to_radians().sin_cos();
-    let (s, c) = ((s * 4096.0).round() as i32, (c * 4096.0).round() as i32);
+    let (s, c) = steer(angle_deg);
     let st = blurred.stride;
     let centre = blurred.idx(x, y);
     // Every rotated point lies within 22 pixels of the centre, and each gather reads 4 bytes

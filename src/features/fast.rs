@@ -209,6 +209,21 @@ pub(super) fn emit_kept(mut keep: u32, scores: &Lanes, x: usize, y: usize, out: 
     }
 }
 
+/// Indices of the 8 neighbours of index `at` in a map of row length `w` (suppression).
+#[inline(always)]
+pub(super) fn ring8(at: usize, w: usize) -> [usize; 8] {
+    [
+        at - w - 1,
+        at - w,
+        at - w + 1,
+        at - 1,
+        at + 1,
+        at + w - 1,
+        at + w,
+        at + w + 1,
+    ]
+}
+
 /// Lanes kept by the first `n` of `LANES` (n <= LANES).
 #[inline(always)]
 pub(super) fn first_lanes(n: usize) -> u32 {
@@ -339,16 +354,7 @@ fn suppress_row(map: &[u8], w: usize, y: usize, x0: usize, x1: usize, out: &mut 
         let mut keep = nonzero_mask(&s) & first_lanes(x1 - x);
         if keep != 0 {
             let mut margin = [u8::MAX; LANES];
-            for off in [
-                at - w - 1,
-                at - w,
-                at - w + 1,
-                at - 1,
-                at + 1,
-                at + w - 1,
-                at + w,
-                at + w + 1,
-            ] {
+            for off in ring8(at, w) {
                 let n = load(map, off);
                 for i in 0..LANES {
                     margin[i] = margin[i].min(s[i].saturating_sub(n[i]));

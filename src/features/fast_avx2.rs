@@ -5,7 +5,7 @@
 
 use std::arch::x86_64::*;
 
-use super::fast::{emit_kept, first_lanes, Corner, Region, CIRCLE, LANES};
+use super::fast::{emit_kept, first_lanes, ring8, Corner, Region, CIRCLE, LANES};
 use crate::image::PaddedImage;
 
 /// Per lane: the best (over the 16 cyclic arcs of 9) of the smallest difference on the arc.
@@ -161,16 +161,7 @@ unsafe fn suppress_row(
         let mut keep = nonzero_mask(s) & first_lanes(x1 - x);
         if keep != 0 {
             let mut margin = _mm256_set1_epi8(-1);
-            for off in [
-                at - w - 1,
-                at - w,
-                at - w + 1,
-                at - 1,
-                at + 1,
-                at + w - 1,
-                at + w,
-                at + w + 1,
-            ] {
+            for off in ring8(at, w) {
                 let n = load(map.as_ptr().add(off));
                 margin = _mm256_min_epu8(margin, _mm256_subs_epu8(s, n));
             }

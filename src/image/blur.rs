@@ -89,6 +89,25 @@ fn horizontal(t: &[u16], out: &mut [u8], from: usize) {
     }
 }
 
+/// The rounded 7-tap sum of 16 lanes of 16-bit values (taps paired, as in [`vertical`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn taps_avx2(r: &[std::arch::x86_64::__m256i; 7]) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let k = |v: u16| _mm256_set1_epi16(v as i16);
+    let acc = _mm256_add_epi16(
+        _mm256_add_epi16(
+            _mm256_mullo_epi16(_mm256_add_epi16(r[0], r[6]), k(K0)),
+            _mm256_mullo_epi16(_mm256_add_epi16(r[1], r[5]), k(K1)),
+        ),
+        _mm256_add_epi16(
+            _mm256_mullo_epi16(_mm256_add_epi16(r[2], r[4]), k(K2)),
+            _mm256_mullo_epi16(r[3], k(K3)),
+        ),
+    );
+    _mm256_srli_epi16::<8>(_mm256_add_epi16(acc, _mm256_set1_epi16(128)))
+}
+
 /// [`vertical`], 16 columns per step (LLVM kept the 7 zero-extended rows in 128-bit halves).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
@@ -96,24 +115,12 @@ unsafe fn vertical_avx2(rows: &[&[u8]; 7], out: &mut [u16]) {
     use std::arch::x86_64::*;
     let n = out.len();
     assert!(rows.iter().all(|r| r.len() == n));
-    let k = [K0, K1, K2, K3].map(|v| _mm256_set1_epi16(v as i16));
-    let round = _mm256_set1_epi16(128);
     let mut x = 0;
     while x + 16 <= n {
         let r: [__m256i; 7] = std::array::from_fn(|i| {
             _mm256_cvtepu8_epi16(_mm_loadu_si128(rows[i].as_ptr().add(x) as *const __m128i))
         });
-        let acc = _mm256_add_epi16(
-            _mm256_add_epi16(
-                _mm256_mullo_epi16(_mm256_add_epi16(r[0], r[6]), k[0]),
-                _mm256_mullo_epi16(_mm256_add_epi16(r[1], r[5]), k[1]),
-            ),
-            _mm256_add_epi16(
-                _mm256_mullo_epi16(_mm256_add_epi16(r[2], r[4]), k[2]),
-                _mm256_mullo_epi16(r[3], k[3]),
-            ),
-        );
-        let v = _mm256_srli_epi16::<8>(_mm256_add_epi16(acc, round));
+        let v = taps_avx2(&r);
         _mm256_storeu_si256(out.as_mut_ptr().add(x) as *mut __m256i, v);
         x += 16;
     }
@@ -127,23 +134,11 @@ unsafe fn horizontal_avx2(t: &[u16], out: &mut [u8]) {
     use std::arch::x86_64::*;
     let n = out.len();
     assert!(t.len() >= n + 6);
-    let k = [K0, K1, K2, K3].map(|v| _mm256_set1_epi16(v as i16));
-    let round = _mm256_set1_epi16(128);
     let mut x = 0;
     while x + 16 <= n {
         let r: [__m256i; 7] =
             std::array::from_fn(|i| _mm256_loadu_si256(t.as_ptr().add(x + i) as *const __m256i));
-        let acc = _mm256_add_epi16(
-            _mm256_add_epi16(
-                _mm256_mullo_epi16(_mm256_add_epi16(r[0], r[6]), k[0]),
-                _mm256_mullo_epi16(_mm256_add_epi16(r[1], r[5]), k[1]),
-            ),
-            _mm256_add_epi16(
-                _mm256_mullo_epi16(_mm256_add_epi16(r[2], r[4]), k[2]),
-                _mm256_mullo_epi16(r[3], k[3]),
-            ),
-        );
-        let v = _mm256_srli_epi16::<8>(_mm256_add_epi16(acc, round));
+        let v = taps_avx2(&r);
         // Values are <= 255: pack the two 128-bit halves' words to 16 bytes.
         let packed = _mm256_packus_epi16(v, v);
         let bytes = _mm256_permute4x64_epi64::<0b1000>(packed);
