@@ -2,7 +2,7 @@
 //! mapping) runs "nicer" so that on a 2-core robot computer the scheduler always prefers the
 //! frame-rate-bound tracking thread. The semi-dense thread degrades first, never tracking.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -43,37 +43,83 @@ pub fn set_current_thread_idle() {
 /// that, only not running. Tracking holds the gate for a frame ([`ForegroundGate::busy`]);
 /// workers call [`ForegroundGate::wait`] between units of work (rows).
 #[derive(Clone, Debug, Default)]
-pub struct ForegroundGate(Arc<AtomicBool>);
+pub struct ForegroundGate(Arc<GateState>);
+
+#[derive(Debug)]
+struct GateState {
+    busy: AtomicBool,
+    origin: Instant,
+    /// When the last busy period ended, microseconds after `origin` (0: none yet).
+    last_end_us: AtomicU64,
+    /// The idle time before the current (or last) busy period, microseconds.
+    last_gap_us: AtomicU64,
+}
+
+impl Default for GateState {
+    fn default() -> Self {
+        GateState {
+            busy: AtomicBool::new(false),
+            origin: Instant::now(),
+            last_end_us: AtomicU64::new(0),
+            last_gap_us: AtomicU64::new(0),
+        }
+    }
+}
+
+impl GateState {
+    fn now_us(&self) -> u64 {
+        (self.origin.elapsed().as_micros() as u64).max(1)
+    }
+}
 
 /// Longest a worker waits for one frame (more than a frame budget): a stalled tracking thread
 /// does not stall the background for good.
 const MAX_GATE_WAIT: Duration = Duration::from_millis(40);
 
+/// Idle time between busy periods above which the foreground is paced (frames arrive in real
+/// time, leaving gaps), not saturated (frames back to back).
+const PACED_GAP: Duration = Duration::from_millis(2);
+
 impl ForegroundGate {
     /// Marks the foreground busy until the returned guard is dropped.
     pub fn busy(&self) -> ForegroundBusy<'_> {
-        self.0.store(true, Ordering::Release);
-        ForegroundBusy(&self.0)
+        let g = &self.0;
+        let end = g.last_end_us.load(Ordering::Relaxed);
+        if end > 0 {
+            let gap = g.now_us().saturating_sub(end);
+            g.last_gap_us.store(gap, Ordering::Relaxed);
+        }
+        g.busy.store(true, Ordering::Release);
+        ForegroundBusy(g)
+    }
+
+    /// Whether the foreground left a gap of more than 2 ms before its current or last busy
+    /// period: work that waits for the gap then still progresses. With frames back to back
+    /// (offline replay), waiting for each frame would hold background work back instead.
+    pub fn paced(&self) -> bool {
+        self.0.last_gap_us.load(Ordering::Relaxed) > PACED_GAP.as_micros() as u64
     }
 
     /// Returns once the foreground is idle (sleeping 100 us at a time, at most 40 ms).
     pub fn wait(&self) {
-        if !self.0.load(Ordering::Acquire) {
+        let busy = &self.0.busy;
+        if !busy.load(Ordering::Acquire) {
             return;
         }
         let t = Instant::now();
-        while self.0.load(Ordering::Acquire) && t.elapsed() < MAX_GATE_WAIT {
+        while busy.load(Ordering::Acquire) && t.elapsed() < MAX_GATE_WAIT {
             std::thread::sleep(Duration::from_micros(100));
         }
     }
 }
 
 /// The foreground is busy while this lives.
-pub struct ForegroundBusy<'a>(&'a AtomicBool);
+pub struct ForegroundBusy<'a>(&'a GateState);
 
 impl Drop for ForegroundBusy<'_> {
     fn drop(&mut self) {
-        self.0.store(false, Ordering::Release);
+        self.0.last_end_us.store(self.0.now_us(), Ordering::Relaxed);
+        self.0.busy.store(false, Ordering::Release);
     }
 }
 
@@ -177,5 +223,22 @@ mod tests {
         let t = Instant::now();
         gate.wait();
         assert!(t.elapsed() < Duration::from_secs(1));
+    }
+
+    #[test]
+    fn gate_tells_paced_frames_from_back_to_back_ones() {
+        use std::time::Duration;
+        let gate = super::ForegroundGate::default();
+        assert!(!gate.paced(), "no frame yet");
+        for _ in 0..3 {
+            drop(gate.busy());
+        }
+        assert!(!gate.paced(), "back to back");
+        std::thread::sleep(Duration::from_millis(5));
+        let busy = gate.busy();
+        assert!(gate.paced(), "after a 5 ms gap");
+        drop(busy);
+        drop(gate.busy());
+        assert!(!gate.paced(), "back to back again");
     }
 }

@@ -94,6 +94,9 @@ pub struct System {
     final_ba: bool,
     /// Held while a frame is processed: semi-dense workers wait meanwhile.
     gate: ForegroundGate,
+    /// Held while tracking waits for the map lock: local mapping does not start its next
+    /// step meanwhile (so tracking waits for one short step at most).
+    map_wanted: ForegroundGate,
     global_ba_after_loop: bool,
     finished: bool,
     /// Place recognition for relocalisation: the vocabulary (the shipped default unless one is
@@ -142,6 +145,7 @@ impl System {
             keys: HashMap::new(),
         }));
         let gate = ForegroundGate::default();
+        let map_wanted = ForegroundGate::default();
         let mapping = if threaded {
             spawn_mapper(
                 camera,
@@ -152,6 +156,7 @@ impl System {
                 Arc::clone(&places),
                 config.map.global_ba_after_loop,
                 gate.clone(),
+                map_wanted.clone(),
             )
         } else {
             Mapping::Inline(Box::new((
@@ -200,6 +205,7 @@ impl System {
             fresh_keyframes: heapless::Vec::new(),
             final_ba: config.map.final_global_ba,
             gate,
+            map_wanted,
             localize_only: false,
             global_ba_after_loop: config.map.global_ba_after_loop,
             finished: false,
@@ -431,7 +437,9 @@ impl System {
         // The map is locked for tracking only (extraction runs unlocked).
         let map_arc = Arc::clone(&self.map);
         let tl = Instant::now();
+        let wanted = self.map_wanted.busy();
         let mut map_guard = lock(&map_arc);
+        drop(wanted);
         self.stats.map_lock_wait.record(tl.elapsed());
         let map = &mut *map_guard;
         let mut new_keyframe = false;

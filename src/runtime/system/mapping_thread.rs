@@ -64,9 +64,9 @@ impl Mapping {
     }
 }
 
-/// Starts the local-mapping thread: per keyframe, prepare in short steps under the lock (each
-/// after the frame being tracked, if any), BA without it, write back under the lock, then pass
-/// the keyframe to loop closing. Exits when the channel closes
+/// Starts the local-mapping thread: per keyframe, prepare in short steps under the lock (none
+/// started while tracking waits for it, or, paced in real time, while a frame is tracked), BA
+/// without it, write back under the lock, then pass the keyframe to loop closing. Exits when the channel closes
 /// (after draining it), hanging up on the loop-closing thread.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn spawn_mapper(
@@ -78,6 +78,7 @@ pub(super) fn spawn_mapper(
     places: Arc<Mutex<PlaceIndex>>,
     global_ba_after_loop: bool,
     gate: crate::runtime::ForegroundGate,
+    map_wanted: crate::runtime::ForegroundGate,
 ) -> Mapping {
     let mut mapper = LocalMapper::new(camera, scales);
     let (tx, rx) = bounded::<KeyFrameId>(8);
@@ -111,16 +112,23 @@ pub(super) fn spawn_mapper(
                 crate::runtime::faults::maybe_panic("panic:local_mapping", n);
                 idle_t.store(false, Ordering::Release);
                 let t = Instant::now();
-                // The map is locked per step, and each step first lets a frame being
-                // tracked finish (tracking would otherwise wait for the lock).
+                // The map is locked per step. No step starts while tracking waits for the
+                // lock, and with frames paced in real time none starts while a frame is being
+                // tracked (steps run in the gaps); back to back, mapping runs alongside.
+                let yield_to_tracking = || {
+                    if gate.paced() {
+                        gate.wait();
+                    }
+                    map_wanted.wait();
+                };
                 let has_ba = mapper.prepare_in_steps(kf, &mut |step: &mut dyn FnMut(&mut Map)| {
-                    gate.wait();
+                    yield_to_tracking();
                     step(&mut lock(&map))
                 });
                 if has_ba {
                     mapper.solve();
                 }
-                gate.wait();
+                yield_to_tracking();
                 mapper.finish(&mut lock(&map), kf);
                 timer.record(t.elapsed());
                 match (&loop_tx, &mut own) {
