@@ -325,12 +325,9 @@ impl LocalMapper {
             {
                 continue;
             }
-            let Ok(p) = map.insert_point(pw, kf) else {
+            let Ok(p) = map.insert_two_view_point(pw, (kf, i as usize), (n, j as usize)) else {
                 return;
             };
-            map.add_observation(p, kf, i as usize);
-            map.add_observation(p, n, j as usize);
-            map.update_point_geometry(p);
             created.push(p);
         }
     }

@@ -230,6 +230,21 @@ impl Map {
         })
     }
 
+    /// A new point triangulated from two views: inserted with `a` as its reference keyframe,
+    /// observed by keypoint `i` of `a` and `j` of `b`, its normal and descriptor updated.
+    pub fn insert_two_view_point(
+        &mut self,
+        position: Vector3<f64>,
+        (a, i): (KeyFrameId, usize),
+        (b, j): (KeyFrameId, usize),
+    ) -> Result<MapPointId, MapFull> {
+        let p = self.insert_point(position, a)?;
+        self.add_observation(p, a, i);
+        self.add_observation(p, b, j);
+        self.update_point_geometry(p);
+        Ok(p)
+    }
+
     /// Records that keypoint `idx` of `kf` observes `mp`.
     pub fn add_observation(&mut self, mp: MapPointId, kf: KeyFrameId, idx: usize) -> bool {
         let Some(k) = self.keyframes.get_mut(kf) else {

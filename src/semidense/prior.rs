@@ -110,17 +110,6 @@ impl RegionalPrior {
         );
         self.ranges[cy * self.cols + cx]
     }
-
-    /// The keyframe-wide interval the ranges were built from.
-    pub fn global(&self) -> (f64, f64) {
-        self.global
-    }
-
-    /// Sets only the keyframe-wide interval (every pixel uses it): offline callers and tests.
-    pub fn set_global(&mut self, global: (f64, f64)) {
-        self.clear();
-        self.finish(global, usize::MAX, 0.0);
-    }
 }
 
 #[cfg(test)]

@@ -47,12 +47,12 @@ impl System {
         };
         for (m, &(i, j)) in pairs.iter().enumerate() {
             let Some(p) = motion.points[m] else { continue };
-            let Ok(mp) = map.insert_point(p, kf0) else {
+            if map
+                .insert_two_view_point(p, (kf0, i as usize), (kf1, j as usize))
+                .is_err()
+            {
                 break;
-            };
-            map.add_observation(mp, kf0, i as usize);
-            map.add_observation(mp, kf1, j as usize);
-            map.update_point_geometry(mp);
+            }
         }
         map.update_connections(kf0);
         map.update_connections(kf1);
