@@ -259,22 +259,11 @@ impl StereoPair {
         };
         *samples += n as u64;
         let best = scan(&walk, &probe, params, words);
-        let best = (best.e, best.k, best.ri, best.rg);
-        let (e, k, ri, rg) = best;
-        if e > params.max_error {
+        if best.e > params.max_error {
             return None;
         }
-        // Derivatives per step along the line (eq. 5) and the sub-pixel step (eq. 6).
-        let at = |kk: f64| {
-            let m = m0 + sgn * kk;
-            let mn = minor0 + slope * kk;
-            let (x, y) = if horizontal { (m, mn) } else { (mn, m) };
-            target.sample(x as f32, y as f32)
-        };
-        let (ip, gp) = at(k as f64 + 1.0);
-        let (im, gm) = at(k as f64 - 1.0);
-        let g = 0.5 * (ip - im);
-        let q = 0.5 * (gp - gm);
+        let (k, ri, rg, g, q) = (best.k, best.ri, best.rg, best.g, best.q);
+        // The sub-pixel step (eq. 6) from the derivatives along the line (eq. 5).
         let denom = g * g + q * q * params.inv_theta;
         if denom < 1e-6 {
             return None;

@@ -31,17 +31,21 @@ pub(super) struct Probe {
     pub a_line: u8,
 }
 
-/// Best sample: similarity error, its index, and its residuals r_I, r_G.
+/// Best sample: similarity error, its index, and (when the error is at most the accepted
+/// maximum) its residuals r_I, r_G and the derivatives g, q along the line (eq. 5, per step).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Best {
     pub e: f32,
     pub k: usize,
     pub ri: f32,
     pub rg: f32,
+    pub g: f32,
+    pub q: f32,
 }
 
 /// Scans `walk` over `t` (an image's packed words, or their transpose for steep lines).
-/// Every sample must lie at least one pixel inside the image.
+/// Every sample must lie at least two pixels inside the image (the AVX2 path reads the eight
+/// words of a step and the row on either side unmasked).
 pub(super) fn scan(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx512f") {
@@ -70,13 +74,32 @@ fn passes(code: u8, probe: &Probe, params: &SearchParams) -> bool {
         & (d2.min(64 - d2) < params.lambda_l_steps)
 }
 
-/// Sample k: its two words along the minor axis and the fraction between them (16 bits).
+/// Offsets and bounds that turn a circular test `min(d, M - d) < t` on `d = (o - a) mod M`
+/// into one subtraction, mask and comparison: `(o - (a + 1 - t)) mod M < 2 t - 1`.
 #[inline]
-fn words(k: usize, walk: &Walk, t: &[u32]) -> (u32, u32, i32) {
-    let major = (walk.major0 + walk.major_step * k as i32) as usize;
-    let minor = walk.minor0 + walk.minor_step * k as i32;
-    let i0 = major + (minor >> 16) as usize * walk.stride_n;
-    (t[i0], t[i0 + walk.stride_n], minor & 0xffff)
+fn circular_test(a: u8, t: u8, modulus: i32) -> (i32, i32) {
+    let t = t as i32;
+    ((a as i32 + 1 - t).rem_euclid(modulus), 2 * t - 1)
+}
+
+/// The similarity error (eq. 3) up to the factor 1 / sigma_I^2, from the intensity and
+/// the modulus in fixed point (exact integers in f32), so the scan needs two products and a
+/// sum per sample; [`finish`] applies the factor to the winner.
+#[inline]
+fn ranking_error(v: u32, pi: f32, pg_fixed: f32, k_g: f32) -> f32 {
+    let ri = pi - ((v >> 8) & 255) as f32;
+    let rg = pg_fixed - (v >> 16) as f32;
+    ri * ri + rg * rg * k_g
+}
+
+/// Constants of [`ranking_error`]: the probe's modulus in the packed fixed point, and
+/// 1 / theta in those units.
+#[inline]
+fn ranking_constants(probe: &Probe, params: &SearchParams) -> (f32, f32) {
+    (
+        probe.modulus * MODULUS_SCALE,
+        params.inv_theta / (MODULUS_SCALE * MODULUS_SCALE),
+    )
 }
 
 /// Interpolated intensity and modulus between two words.
@@ -88,23 +111,13 @@ fn lerp(v0: u32, v1: u32, frac: i32) -> (f32, f32) {
     (i0 + (i1 - i0) * f, g0 + (g1 - g0) * f)
 }
 
-/// Residuals (r_I, r_G) and similarity error (eq. 3) of sample k.
+/// Interpolated (intensity, modulus) at sample k; k may be one step outside the walk.
 #[inline]
-pub(super) fn residuals(
-    k: usize,
-    walk: &Walk,
-    probe: &Probe,
-    params: &SearchParams,
-    t: &[u32],
-) -> (f32, f32, f32) {
-    let (v0, v1, frac) = words(k, walk, t);
-    let (i, g) = lerp(v0, v1, frac);
-    let (ri, rg) = (probe.intensity - i, probe.modulus - g);
-    (
-        ri,
-        rg,
-        (ri * ri + rg * rg * params.inv_theta) * params.inv_sigma_i2,
-    )
+fn sample_at(k: isize, walk: &Walk, t: &[u32]) -> (f32, f32) {
+    let major = (walk.major0 as isize + walk.major_step as isize * k) as usize;
+    let minor = walk.minor0 as isize + walk.minor_step as isize * k;
+    let i0 = major + (minor >> 16) as usize * walk.stride_n;
+    lerp(t[i0], t[i0 + walk.stride_n], (minor & 0xffff) as i32)
 }
 
 const NONE: Best = Best {
@@ -112,6 +125,8 @@ const NONE: Best = Best {
     k: 0,
     ri: 0.0,
     rg: 0.0,
+    g: 0.0,
+    q: 0.0,
 };
 
 /// Across SIMD lanes (each holding its first minimum): the smallest error, and among equal
@@ -128,11 +143,12 @@ fn reduce_lanes(es: &[f32], ks: &[i32]) -> Best {
 }
 
 pub(super) fn scan_scalar(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
+    let (pg_fixed, k_g) = ranking_constants(probe, params);
     let mut best = NONE;
     for k in 0..walk.n {
         let v = t[nearest(k, walk)];
         if passes((v & 255) as u8, probe, params) {
-            let e = error(v, probe, params);
+            let e = ranking_error(v, probe.intensity, pg_fixed, k_g);
             if e < best.e {
                 best.e = e;
                 best.k = k;
@@ -150,20 +166,19 @@ fn nearest(k: usize, walk: &Walk) -> usize {
     major + ((minor + 32768) >> 16) as usize * walk.stride_n
 }
 
-/// Similarity error (eq. 3) of a pixel's word.
-#[inline]
-fn error(v: u32, probe: &Probe, params: &SearchParams) -> f32 {
-    let (_, i, g) = unpack(v);
-    let (ri, rg) = (probe.intensity - i, probe.modulus - g);
-    (ri * ri + rg * rg * params.inv_theta) * params.inv_sigma_i2
-}
-
-/// The best sample's residuals on the line itself (interpolated), for the sub-pixel step.
+/// The winner's similarity error (eq. 3); if acceptable, its residuals and the derivatives
+/// along the line (eq. 5) from the samples on either side, interpolated on the line itself.
 fn finish(mut best: Best, walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
-    if best.e.is_finite() {
-        let (ri, rg, _) = residuals(best.k, walk, probe, params, t);
-        best.ri = ri;
-        best.rg = rg;
+    best.e *= params.inv_sigma_i2;
+    if best.e <= params.max_error {
+        let k = best.k as isize;
+        let (i, g) = sample_at(k, walk, t);
+        let (ip, gp) = sample_at(k + 1, walk, t);
+        let (im, gm) = sample_at(k - 1, walk, t);
+        best.ri = probe.intensity - i;
+        best.rg = probe.modulus - g;
+        best.g = 0.5 * (ip - im);
+        best.q = 0.5 * (gp - gm);
     }
     best
 }
@@ -171,126 +186,154 @@ fn finish(mut best: Best, walk: &Walk, probe: &Probe, params: &SearchParams, t: 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn scan_avx2(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
+    // Eight samples of a shallow walk (less than one row over seven steps) lie on at most
+    // two rows: two loads and a blend; steeper walks gather.
+    if 7 * walk.minor_step.unsigned_abs() < 65536 {
+        scan_avx2_with::<true>(walk, probe, params, t)
+    } else {
+        scan_avx2_with::<false>(walk, probe, params, t)
+    }
+}
+
+/// Eight samples per step. Lane l holds the samples at memory position `pos + l` along the
+/// major axis (backward walks: sample indices descend across the lanes), so contiguous
+/// loads need no lane reversal. The eight words of a step, and of the row on either side,
+/// lie inside `t` because every sample is at least two pixels inside the image; lanes past
+/// the end of the walk are masked out of the result only.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn scan_avx2_with<const SHALLOW: bool>(
+    walk: &Walk,
+    probe: &Probe,
+    params: &SearchParams,
+    t: &[u32],
+) -> Best {
     use std::arch::x86_64::*;
-    let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-    let major_step = _mm256_set1_epi32(walk.major_step);
-    let minor_step = _mm256_set1_epi32(walk.minor_step);
-    let stride_n = _mm256_set1_epi32(walk.stride_n as i32);
-    let half_px = _mm256_set1_epi32(32768);
-    let byte = _mm256_set1_epi32(0xff);
-    let one = _mm256_set1_epi32(1);
+    let forward = walk.major_step > 0;
+    // Sample index of each lane in the first step.
+    let k_first = if forward {
+        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7)
+    } else {
+        _mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0)
+    };
+    let (k3, b3) = circular_test(probe.a_ref, params.lambda_theta_steps, 128);
+    let (k2, b2) = circular_test(probe.a_line, params.lambda_l_steps, 64);
+    let (k3, b3) = (_mm256_set1_epi32(k3), _mm256_set1_epi32(b3));
+    let (k2, b2) = (_mm256_set1_epi32(k2), _mm256_set1_epi32(b2));
     let m127 = _mm256_set1_epi32(127);
     let m63 = _mm256_set1_epi32(63);
-    let c128 = _mm256_set1_epi32(128);
-    let c64 = _mm256_set1_epi32(64);
-    let a_ref = _mm256_set1_epi32(probe.a_ref as i32);
-    let a_line = _mm256_set1_epi32(probe.a_line as i32);
-    let t3 = _mm256_set1_epi32(params.lambda_theta_steps as i32);
-    let t2 = _mm256_set1_epi32(params.lambda_l_steps as i32);
-    let inv_mod = _mm256_set1_ps(1.0 / MODULUS_SCALE);
+    let (pg_fixed, k_g) = ranking_constants(probe, params);
     let pi = _mm256_set1_ps(probe.intensity);
-    let pg = _mm256_set1_ps(probe.modulus);
-    let inv_theta = _mm256_set1_ps(params.inv_theta);
-    let inv_s2 = _mm256_set1_ps(params.inv_sigma_i2);
-    let inf = _mm256_set1_ps(f32::INFINITY);
+    let pg = _mm256_set1_ps(pg_fixed);
+    let k_g = _mm256_set1_ps(k_g);
+    // Byte 1 of each word (the intensity) to the low byte, zero-extended.
+    let intensity_bytes = _mm256_setr_epi8(
+        1, -1, -1, -1, 5, -1, -1, -1, 9, -1, -1, -1, 13, -1, -1, -1, 1, -1, -1, -1, 5, -1, -1, -1,
+        9, -1, -1, -1, 13, -1, -1, -1,
+    );
     let base = t.as_ptr() as *const i32;
-    let mut best_e = inf;
+    let stride = walk.stride_n as isize;
+    let mut best_e = _mm256_set1_ps(f32::INFINITY);
     let mut best_k = _mm256_setzero_si256();
-    // Lane state, advanced by 8 samples per iteration.
-    let mut kv = lanes;
-    let mut major = _mm256_add_epi32(
-        _mm256_set1_epi32(walk.major0),
-        _mm256_mullo_epi32(lanes, major_step),
-    );
+    let mut kv = k_first;
+    let k_step = _mm256_set1_epi32(8);
+    // Rounded minor coordinate of each lane (16.16 fixed point, + 0.5 for rounding).
     let mut minor = _mm256_add_epi32(
-        _mm256_set1_epi32(walk.minor0),
-        _mm256_mullo_epi32(lanes, minor_step),
+        _mm256_set1_epi32(walk.minor0 + 32768),
+        _mm256_mullo_epi32(k_first, _mm256_set1_epi32(walk.minor_step)),
     );
-    let eight = _mm256_set1_epi32(8);
-    let major_8 = _mm256_set1_epi32(8 * walk.major_step);
     let minor_8 = _mm256_set1_epi32(8 * walk.minor_step);
-    let n = _mm256_set1_epi32(walk.n as i32);
+    // Memory position (major coordinate) of lane 0, and its rounded minor coordinate.
+    let back = if forward { 0 } else { 7 };
+    let mut pos = walk.major0 as isize - back;
+    let pos_8: isize = if forward { 8 } else { -8 };
+    let mut minor_lane0 = walk.minor0 + 32768 + walk.minor_step * back as i32;
+    let minor_lane0_8 = 8 * walk.minor_step;
+    // The other row a shallow step may touch, relative to lane 0's.
+    let next_row = (walk.minor_step.signum() * if forward { 1 } else { -1 }) as isize * stride;
+    let stride_v = _mm256_set1_epi32(walk.stride_n as i32);
+    let pos_lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let n_v = _mm256_set1_epi32(walk.n as i32);
     let mut k0 = 0usize;
     while k0 < walk.n {
-        let live = _mm256_cmpgt_epi32(n, kv);
-        // The conditions and the error are evaluated on the pixel nearest to each sample
-        // (one gather); the winner's residuals are interpolated on the line afterwards.
-        let row = _mm256_srai_epi32::<16>(_mm256_add_epi32(minor, half_px));
-        let idx = _mm256_add_epi32(major, _mm256_mullo_epi32(row, stride_n));
-        // Few rows crossed by the eight samples: masked contiguous loads, one per row
-        // (cheaper than a gather; masked-out lanes read nothing).
-        let minor_first = walk.minor0 + walk.minor_step * k0 as i32;
-        let r_a = (minor_first + 32768) >> 16;
-        let r_b = (minor_first + 7 * walk.minor_step + 32768) >> 16;
-        let (r_lo, r_hi) = (r_a.min(r_b), r_a.max(r_b));
-        let major_first = walk.major0 as isize + walk.major_step as isize * k0 as isize;
-        let near = if r_hi - r_lo < LOAD_ROWS_MAX / 2 {
-            let forward = walk.major_step > 0;
-            let rev = _mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0);
-            // Backward walks: lane l reads major_first - l; load the 8 words ending there
-            // in reversed lane order and reverse them afterwards.
-            let (row_o, live_o, start) = if forward {
-                (row, live, major_first)
-            } else {
-                (
-                    _mm256_permutevar8x32_epi32(row, rev),
-                    _mm256_permutevar8x32_epi32(live, rev),
-                    major_first - 7,
-                )
-            };
-            let mut near = _mm256_setzero_si256();
-            for r in r_lo..=r_hi {
-                let m = _mm256_and_si256(live_o, _mm256_cmpeq_epi32(row_o, _mm256_set1_epi32(r)));
-                let p = base.wrapping_offset(start + r as isize * walk.stride_n as isize);
-                near = _mm256_or_si256(near, _mm256_maskload_epi32(p, m));
-            }
-            if forward {
-                near
-            } else {
-                _mm256_permutevar8x32_epi32(near, rev)
-            }
+        let row = _mm256_srai_epi32::<16>(minor);
+        let live = _mm256_cmpgt_epi32(n_v, kv);
+        let near = if SHALLOW {
+            let r0 = minor_lane0 >> 16;
+            let p = base.wrapping_offset(pos + r0 as isize * stride);
+            let a = _mm256_loadu_si256(p as *const __m256i);
+            let b = _mm256_loadu_si256(p.wrapping_offset(next_row) as *const __m256i);
+            _mm256_blendv_epi8(b, a, _mm256_cmpeq_epi32(row, _mm256_set1_epi32(r0)))
         } else {
+            let idx = _mm256_add_epi32(
+                _mm256_add_epi32(_mm256_set1_epi32(pos as i32), pos_lanes),
+                _mm256_mullo_epi32(row, stride_v),
+            );
+            // Masked: past the end of the walk a steep line soon leaves the image.
             _mm256_mask_i32gather_epi32::<4>(_mm256_setzero_si256(), base, idx, live)
         };
-        let code = _mm256_and_si256(near, byte);
-        let o = _mm256_srli_epi32::<1>(code);
-        let d3 = _mm256_and_si256(_mm256_sub_epi32(o, a_ref), m127);
-        let d3 = _mm256_min_epi32(d3, _mm256_sub_epi32(c128, d3));
-        let d2 = _mm256_and_si256(_mm256_sub_epi32(o, a_line), m63);
-        let d2 = _mm256_min_epi32(d2, _mm256_sub_epi32(c64, d2));
-        let strong = _mm256_cmpeq_epi32(_mm256_and_si256(code, one), one);
-        let ok = _mm256_and_si256(
-            _mm256_and_si256(strong, live),
-            _mm256_and_si256(_mm256_cmpgt_epi32(t3, d3), _mm256_cmpgt_epi32(t2, d2)),
+        let o = _mm256_srli_epi32::<1>(_mm256_and_si256(near, _mm256_set1_epi32(0xff)));
+        let c3 = _mm256_cmpgt_epi32(b3, _mm256_and_si256(_mm256_sub_epi32(o, k3), m127));
+        let c2 = _mm256_cmpgt_epi32(b2, _mm256_and_si256(_mm256_sub_epi32(o, k2), m63));
+        // Bit 0 (strong gradient) to the sign bit, which is all the blends below read.
+        let ok = _mm256_and_si256(_mm256_and_si256(c3, c2), _mm256_slli_epi32::<31>(near));
+        let ri = _mm256_sub_ps(
+            pi,
+            _mm256_cvtepi32_ps(_mm256_shuffle_epi8(near, intensity_bytes)),
         );
-        // Same arithmetic as `error`, eight lanes at a time (no branch on `ok`: it is
-        // data-dependent and mispredicts).
-        let i = _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32::<8>(near), byte));
-        let g = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32::<16>(near)), inv_mod);
-        let ri = _mm256_sub_ps(pi, i);
-        let rg = _mm256_sub_ps(pg, g);
-        let e = _mm256_mul_ps(
-            _mm256_add_ps(
-                _mm256_mul_ps(ri, ri),
-                _mm256_mul_ps(_mm256_mul_ps(rg, rg), inv_theta),
-            ),
-            inv_s2,
+        let rg = _mm256_sub_ps(pg, _mm256_cvtepi32_ps(_mm256_srli_epi32::<16>(near)));
+        let e = _mm256_add_ps(
+            _mm256_mul_ps(ri, ri),
+            _mm256_mul_ps(_mm256_mul_ps(rg, rg), k_g),
         );
-        let e = _mm256_blendv_ps(inf, e, _mm256_castsi256_ps(ok));
-        // Per lane, keep the first minimum (strictly smaller replaces).
-        let better = _mm256_cmp_ps::<_CMP_LT_OQ>(e, best_e);
+        // Per lane, keep the first minimum (strictly smaller replaces); lanes past the end
+        // of the walk (last step only) are dropped.
+        let mut better = _mm256_and_si256(
+            _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(e, best_e)),
+            ok,
+        );
+        if k0 + 8 > walk.n {
+            better = _mm256_and_si256(better, live);
+        }
+        let better = _mm256_castsi256_ps(better);
         best_e = _mm256_blendv_ps(best_e, e, better);
-        best_k = _mm256_blendv_epi8(best_k, kv, _mm256_castps_si256(better));
-        kv = _mm256_add_epi32(kv, eight);
-        major = _mm256_add_epi32(major, major_8);
+        best_k = _mm256_castps_si256(_mm256_blendv_ps(
+            _mm256_castsi256_ps(best_k),
+            _mm256_castsi256_ps(kv),
+            better,
+        ));
+        kv = _mm256_add_epi32(kv, k_step);
         minor = _mm256_add_epi32(minor, minor_8);
+        pos += pos_8;
+        minor_lane0 += minor_lane0_8;
         k0 += 8;
     }
-    let mut es = [0.0f32; 8];
-    let mut ks = [0i32; 8];
-    _mm256_storeu_ps(es.as_mut_ptr(), best_e);
-    _mm256_storeu_si256(ks.as_mut_ptr() as *mut __m256i, best_k);
-    finish(reduce_lanes(&es, &ks), walk, probe, params, t)
+    finish(reduce_avx2(best_e, best_k), walk, probe, params, t)
+}
+
+/// [`reduce_lanes`] without branches: the smallest error, then the smallest sample index
+/// among the lanes holding it.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn reduce_avx2(e: std::arch::x86_64::__m256, k: std::arch::x86_64::__m256i) -> Best {
+    use std::arch::x86_64::*;
+    let m = _mm256_min_ps(e, _mm256_permute2f128_ps::<1>(e, e));
+    let m = _mm256_min_ps(m, _mm256_shuffle_ps::<0b01_00_11_10>(m, m));
+    let m = _mm256_min_ps(m, _mm256_shuffle_ps::<0b10_11_00_01>(m, m));
+    let min = _mm256_cvtss_f32(m);
+    if min == f32::INFINITY {
+        return NONE;
+    }
+    let at_min = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_EQ_OQ>(e, m));
+    let ks = _mm256_blendv_epi8(_mm256_set1_epi32(i32::MAX), k, at_min);
+    let ks = _mm256_min_epi32(ks, _mm256_permute2x128_si256::<1>(ks, ks));
+    let ks = _mm256_min_epi32(ks, _mm256_shuffle_epi32::<0b01_00_11_10>(ks));
+    let ks = _mm256_min_epi32(ks, _mm256_shuffle_epi32::<0b10_11_00_01>(ks));
+    Best {
+        e: min,
+        k: _mm256_cvtsi256_si32(ks) as usize,
+        ..NONE
+    }
 }
 
 /// Most rows sixteen samples may span for the contiguous-load path (beyond it, one gather).
@@ -313,11 +356,10 @@ unsafe fn scan_avx512(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u3
     let a_line = _mm512_set1_epi32(probe.a_line as i32);
     let t3 = _mm512_set1_epi32(params.lambda_theta_steps as i32);
     let t2 = _mm512_set1_epi32(params.lambda_l_steps as i32);
-    let inv_mod = _mm512_set1_ps(1.0 / MODULUS_SCALE);
+    let (pg_fixed, k_g) = ranking_constants(probe, params);
     let pi = _mm512_set1_ps(probe.intensity);
-    let pg = _mm512_set1_ps(probe.modulus);
-    let inv_theta = _mm512_set1_ps(params.inv_theta);
-    let inv_s2 = _mm512_set1_ps(params.inv_sigma_i2);
+    let pg = _mm512_set1_ps(pg_fixed);
+    let k_g = _mm512_set1_ps(k_g);
     let inf = _mm512_set1_ps(f32::INFINITY);
     let mut best_e = inf;
     let mut best_k = _mm512_setzero_si512();
@@ -392,16 +434,14 @@ unsafe fn scan_avx512(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u3
             & _mm512_cmpgt_epi32_mask(t2, d2);
         // Same arithmetic as `error`, sixteen lanes at a time; no branch on `ok` (it is
         // data-dependent and mispredicts, exposing the gather latency every time).
+        // `ranking_error`, sixteen lanes at a time.
         let i = _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32::<8>(near), byte));
-        let g = _mm512_mul_ps(_mm512_cvtepi32_ps(_mm512_srli_epi32::<16>(near)), inv_mod);
+        let g = _mm512_cvtepi32_ps(_mm512_srli_epi32::<16>(near));
         let ri = _mm512_sub_ps(pi, i);
         let rg = _mm512_sub_ps(pg, g);
-        let e = _mm512_mul_ps(
-            _mm512_add_ps(
-                _mm512_mul_ps(ri, ri),
-                _mm512_mul_ps(_mm512_mul_ps(rg, rg), inv_theta),
-            ),
-            inv_s2,
+        let e = _mm512_add_ps(
+            _mm512_mul_ps(ri, ri),
+            _mm512_mul_ps(_mm512_mul_ps(rg, rg), k_g),
         );
         // Per lane, keep the first minimum (strictly smaller replaces).
         let better = ok & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(e, best_e);
