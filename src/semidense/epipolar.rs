@@ -91,6 +91,8 @@ pub struct StereoPair {
     kt: Vector3<f64>,
     /// In-plane rotation from i to j in orientation steps, from the ORB matches.
     rot: u8,
+    /// 1 / (K t_ji).z (infinite when the translation has no depth component).
+    inv_kt_z: f64,
 }
 
 /// One inverse-depth hypothesis N(rho, sigma^2).
@@ -117,10 +119,12 @@ impl StereoPair {
             1.0,
         );
         let r = t_ji.rotation.to_rotation_matrix();
+        let kt = km * t_ji.translation.vector;
         StereoPair {
             kr: km * r.matrix() * kinv,
-            kt: km * t_ji.translation.vector,
+            kt,
             rot: quantise_orientation(delta_theta as f32),
+            inv_kt_z: 1.0 / kt.z,
         }
     }
 
@@ -169,7 +173,7 @@ impl StereoPair {
                 return None;
             }
         } else {
-            let rho0 = (MIN_Z - a.z) / b.z;
+            let rho0 = (MIN_Z - a.z) * self.inv_kt_z;
             if b.z > 0.0 {
                 lo = lo.max(rho0);
             } else {
@@ -181,7 +185,8 @@ impl StereoPair {
         }
         let proj = |rho: f64| {
             let h = a + b * rho;
-            (h.x / h.z, h.y / h.z)
+            let inv_z = 1.0 / h.z;
+            (h.x * inv_z, h.y * inv_z)
         };
         let (p0, p1) = (proj(lo), proj(hi));
         let (ex, ey) = (p1.0 - p0.0, p1.1 - p0.1);
@@ -190,7 +195,8 @@ impl StereoPair {
             // No parallax over the prior: the match would not constrain the depth.
             return None;
         }
-        let (dx, dy) = (ex / len, ey / len);
+        let inv_len = 1.0 / len;
+        let (dx, dy) = (ex * inv_len, ey * inv_len);
         let (s_lo, s_hi) = clip_segment(
             p0,
             (dx, dy),
@@ -240,8 +246,10 @@ impl StereoPair {
             return None;
         }
         let n = span.floor() as usize + 1;
-        let slope = dn / dm.abs(); // minor change per step
-        let minor0 = pn + dn * (m0 - pm) / dm;
+        // Divisions are the slow part of this set-up: one for 1 / dm.
+        let inv_dm = 1.0 / dm;
+        let slope = dn * inv_dm.abs(); // minor change per step
+        let minor0 = pn + dn * (m0 - pm) * inv_dm;
         const ONE: f64 = 65536.0;
         let walk = Walk {
             major0: m0 as i32,
@@ -273,8 +281,8 @@ impl StereoPair {
             return None;
         }
         // Back to the line parameter s: one step moves 1 / |dm| along the line.
-        let step = 1.0 / dm.abs();
-        let s_k = (m0 + sgn * k as f64 - pm) / dm;
+        let step = inv_dm.abs();
+        let s_k = (m0 + sgn * k as f64 - pm) * inv_dm;
         // Eq. 7 (in steps, then in line length).
         let sigma_s = (2.0 * params.sigma_i2 / denom).sqrt() as f64 * step;
         let s_star = s_k + delta as f64 * step;
@@ -322,7 +330,8 @@ fn clip_segment(
             }
             continue;
         }
-        let (t1, t2) = ((mn - p) / dd, (mx - p) / dd);
+        let inv = 1.0 / dd;
+        let (t1, t2) = ((mn - p) * inv, (mx - p) * inv);
         let (a, b) = if t1 < t2 { (t1, t2) } else { (t2, t1) };
         lo = lo.max(a);
         hi = hi.min(b);

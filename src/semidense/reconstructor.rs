@@ -43,6 +43,7 @@ pub struct KeyframeReconstructor {
     params: SearchParams,
     lambda_n: usize,
     consensus_window: bool,
+    early_reject_after: usize,
     /// Gradient images of recent keyframes (least recently used replaced): a keyframe is the
     /// neighbour of about N others, so most are computed once.
     cache: Vec<CachedImage>,
@@ -92,6 +93,7 @@ impl KeyframeReconstructor {
             params: SearchParams::from_config(config),
             lambda_n: config.lambda_n,
             consensus_window: config.consensus_window,
+            early_reject_after: config.early_reject_after,
             cache: (0..2 * n + 2)
                 .map(|_| CachedImage {
                     key: None,
@@ -242,6 +244,7 @@ impl KeyframeReconstructor {
             params: self.params,
             lambda_n: self.lambda_n,
             consensus_window: self.consensus_window,
+            early_reject_after: self.early_reject_after,
             reference,
             neighbours: &neighbours[..],
             pairs: &self.pairs,
@@ -349,6 +352,7 @@ struct DepthContext<'a> {
     params: SearchParams,
     lambda_n: usize,
     consensus_window: bool,
+    early_reject_after: usize,
     reference: &'a GradientImage,
     neighbours: &'a [&'a GradientImage],
     pairs: &'a [StereoPair],
@@ -385,6 +389,10 @@ impl DepthContext<'_> {
                 if n + (total - j) < self.lambda_n {
                     break;
                 }
+                // Ambiguous so far: no two hypotheses agree (config `early_reject_after`).
+                if j > 0 && j == self.early_reject_after && !has_compatible_pair(&hyps[..n]) {
+                    break;
+                }
                 if let Some(hy) = pair.search_within(
                     &self.params,
                     x as f64,
@@ -412,6 +420,15 @@ impl DepthContext<'_> {
     }
 }
 
+/// Whether two of the hypotheses pass eq. 10's compatibility test.
+fn has_compatible_pair(h: &[Hypothesis]) -> bool {
+    h.iter().enumerate().any(|(i, a)| {
+        h[i + 1..].iter().any(|b| {
+            super::fusion::compatible(a.rho, a.sigma * a.sigma, b.rho, b.sigma * b.sigma)
+        })
+    })
+}
+
 /// The inverse depths a further hypothesis must fall in to be compatible (eq. 10) with the
 /// newest hypothesis and one earlier hypothesis it is compatible with: rho +- sqrt(5.99) sigma
 /// of each of the two (a wider new hypothesis only narrows the test). `None` until such a
@@ -433,6 +450,14 @@ mod tests {
 
     fn h(rho: f32, sigma: f32) -> Hypothesis {
         Hypothesis { rho, sigma }
+    }
+
+    #[test]
+    fn a_compatible_pair_is_found_among_incompatible_hypotheses() {
+        assert!(!has_compatible_pair(&[]));
+        assert!(!has_compatible_pair(&[h(1.0, 0.01)]));
+        assert!(!has_compatible_pair(&[h(1.0, 0.01), h(1.5, 0.01), h(2.0, 0.01)]));
+        assert!(has_compatible_pair(&[h(1.0, 0.01), h(1.5, 0.01), h(1.505, 0.01)]));
     }
 
     #[test]
