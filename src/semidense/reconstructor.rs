@@ -253,17 +253,21 @@ impl KeyframeReconstructor {
             pixels: AtomicU64::new(0),
             samples: AtomicU64::new(0),
         };
-        let depth_rows = |rows: (usize, (&mut [f32], &mut [f32]))| {
-            let (y, (r, s)) = rows;
-            ctx.row(y, w, h, r, s);
+        // Bands of rows, walked in blocks of columns: steep epipolar lines walk columns of
+        // the neighbours (their transposed words), so a block's pixels reuse the same few
+        // cached columns, which a full image row (640 columns x 7 neighbours) would evict.
+        let gate = self.gate.as_ref();
+        let depth_bands = |band: (usize, (&mut [f32], &mut [f32]))| {
+            let (b, (r, s)) = band;
+            ctx.band(b * DEPTH_BAND_ROWS, w, h, r, s, gate);
         };
         run_rows(
             self.pool.as_ref(),
-            self.gate.as_ref(),
+            None,
             &mut self.raw_rho,
             &mut self.raw_s2,
-            w,
-            depth_rows,
+            w * DEPTH_BAND_ROWS,
+            depth_bands,
         );
         let t1 = Instant::now();
         let (raw_rho, raw_s2) = (&self.raw_rho, &self.raw_s2);
@@ -363,23 +367,72 @@ struct DepthContext<'a> {
     samples: AtomicU64,
 }
 
+/// Rows per task of the depth stage, and columns per block within it.
+const DEPTH_BAND_ROWS: usize = 8;
+const DEPTH_BLOCK_COLUMNS: usize = 16;
+
 impl DepthContext<'_> {
-    fn row(&self, y: usize, w: usize, h: usize, out_rho: &mut [f32], out_s2: &mut [f32]) {
+    /// Rows `y0..` of the output (`out_*` hold whole rows); each block of columns first
+    /// waits for `gate` (tracking busy).
+    fn band(
+        &self,
+        y0: usize,
+        w: usize,
+        h: usize,
+        out_rho: &mut [f32],
+        out_s2: &mut [f32],
+        gate: Option<&crate::runtime::ForegroundGate>,
+    ) {
         out_rho.fill(0.0);
         out_s2.fill(0.0);
-        if y < 2 || y + 2 >= h {
-            return;
+        let rows = out_rho.len() / w.max(1);
+        let (ya, yb) = (y0.max(2), (y0 + rows).min(h.saturating_sub(2)));
+        let (mut pixels, mut samples) = (0u64, 0u64);
+        let mut x0 = 2;
+        while x0 + 2 < w {
+            if let Some(g) = gate {
+                g.wait();
+            }
+            let x1 = (x0 + DEPTH_BLOCK_COLUMNS).min(w - 2);
+            for y in ya..yb {
+                let o = (y - y0) * w;
+                self.pixels_of_row(
+                    y,
+                    x0..x1,
+                    w,
+                    &mut out_rho[o..o + w],
+                    &mut out_s2[o..o + w],
+                    &mut pixels,
+                    &mut samples,
+                );
+            }
+            x0 = x1;
         }
+        self.pixels.fetch_add(pixels, Ordering::Relaxed);
+        self.samples.fetch_add(samples, Ordering::Relaxed);
+    }
+
+    /// Pixels `xs` of row `y` (at least two pixels inside the image).
+    #[allow(clippy::too_many_arguments)]
+    fn pixels_of_row(
+        &self,
+        y: usize,
+        xs: std::ops::Range<usize>,
+        w: usize,
+        out_rho: &mut [f32],
+        out_s2: &mut [f32],
+        pixels: &mut u64,
+        samples: &mut u64,
+    ) {
         let codes = &self.reference.packed[y * w..(y + 1) * w];
         let mut hyps = [Hypothesis::default(); MAX_NEIGHBOURS];
-        let (mut pixels, mut samples) = (0u64, 0u64);
-        for x in 2..w - 2 {
+        for x in xs {
             // Pixels with G > lambda_G carry a non-zero code.
             if codes[x] & 255 == 0 {
                 continue;
             }
             let p = &self.reference.at(x, y);
-            pixels += 1;
+            *pixels += 1;
             let rho_range = self.prior.map_or(self.rho_range, |p| p.range(x, y));
             let mut n = 0;
             let total = self.pairs.len();
@@ -401,7 +454,7 @@ impl DepthContext<'_> {
                     rho_range,
                     window,
                     img,
-                    &mut samples,
+                    samples,
                 ) {
                     hyps[n] = hy;
                     n += 1;
@@ -415,8 +468,6 @@ impl DepthContext<'_> {
                 out_s2[x] = s2;
             }
         }
-        self.pixels.fetch_add(pixels, Ordering::Relaxed);
-        self.samples.fetch_add(samples, Ordering::Relaxed);
     }
 }
 

@@ -132,13 +132,13 @@ fn stats(label: &str, e: &[f64]) -> (usize, f64, f64, f64) {
     s
 }
 
-/// One keyframe with 7 neighbours at exact poses: the fused and intra-checked maps before the
-/// inter-keyframe check (which removes most remaining outliers; see tests/semidense.rs).
-#[test]
-fn keyframe_depth_and_intra_stages_are_accurate() {
+type Stats = (usize, f64, f64, f64);
+
+/// One keyframe with 7 neighbours at exact poses, reconstructed with `cfg`: stats of the fused
+/// and of the intra-checked maps.
+fn keyframe_stages(cfg: &SemiDenseConfig) -> (Stats, Stats) {
     let seq = sequence();
     let k = intrinsics(&seq.config);
-    let cfg = SemiDenseConfig::default();
     let (w, h) = (seq.config.width as usize, seq.config.height as usize);
     let r = render(&seq, 150);
     let offs: [i64; 7] = [-15, -10, -5, 5, 10, 15, 20];
@@ -154,7 +154,7 @@ fn keyframe_depth_and_intra_stages_are_accurate() {
         .map(|d| 1.0 / d)
         .collect();
     let range = prior_range(&inv).unwrap();
-    let mut rec = KeyframeReconstructor::new(k, w, h, &cfg);
+    let mut rec = KeyframeReconstructor::new(k, w, h, cfg);
     rec.set_reference(1000, Some(&r.gray));
     for (i, n) in nbs.iter().enumerate() {
         rec.add_neighbour(
@@ -178,6 +178,18 @@ fn keyframe_depth_and_intra_stages_are_accurate() {
         s2[p.idx as usize] = p.sigma * p.sigma;
     }
     let intra = stats("intra", &relative_errors(&rho, &s2, &r.depth));
+    (fused, intra)
+}
+
+/// The paper's search (all N neighbours of every pixel): the fused and intra-checked maps
+/// before the inter-keyframe check (which removes most remaining outliers; see
+/// tests/semidense.rs).
+#[test]
+fn keyframe_depth_and_intra_stages_are_accurate() {
+    let (fused, intra) = keyframe_stages(&SemiDenseConfig {
+        early_reject_after: 0,
+        ..SemiDenseConfig::default()
+    });
     for (n, median, within, beyond) in [fused, intra] {
         assert!(n > 15_000, "{n} points");
         assert!(median < 0.005, "median {median}");
@@ -186,4 +198,22 @@ fn keyframe_depth_and_intra_stages_are_accurate() {
     }
     // Smoothing and growing: more points, no worse.
     assert!(intra.0 > fused.0 && intra.3 <= fused.3 + 0.002);
+}
+
+/// The default early rejection of ambiguous pixels keeps the 8,000 points on this
+/// keyframe, and is no less accurate than the full search.
+#[test]
+fn early_rejection_keeps_points_and_accuracy() {
+    let full = keyframe_stages(&SemiDenseConfig {
+        early_reject_after: 0,
+        ..SemiDenseConfig::default()
+    });
+    let early = keyframe_stages(&SemiDenseConfig::default());
+    assert!(SemiDenseConfig::default().early_reject_after > 0);
+    for (e, f) in [(early.0, full.0), (early.1, full.1)] {
+        assert!(e.0 > 8_000 && e.0 < f.0, "{} points (full search {})", e.0, f.0);
+        assert!(e.1 <= f.1 + 0.0005, "median {} vs {}", e.1, f.1);
+        assert!(e.2 >= f.2 - 0.005, "within 2%: {} vs {}", e.2, f.2);
+        assert!(e.3 <= f.3 + 0.002, "beyond 10%: {} vs {}", e.3, f.3);
+    }
 }
