@@ -442,8 +442,13 @@ impl DepthContext<'_> {
                 if n + (total - j) < self.lambda_n {
                     break;
                 }
-                // Ambiguous so far: no two hypotheses agree (config `early_reject_after`).
-                if j > 0 && j == self.early_reject_after && !has_compatible_pair(&hyps[..n]) {
+                // Ambiguous so far: no two hypotheses agree (config `early_reject_after`);
+                // or so it will be, with no pair possible by then.
+                let reject_at = self.early_reject_after;
+                if j < reject_at && n + (reject_at - j) < 2 && reject_at <= total {
+                    break;
+                }
+                if j > 0 && j == reject_at && !has_compatible_pair(&hyps[..n]) {
                     break;
                 }
                 if let Some(hy) = pair.search_within(
