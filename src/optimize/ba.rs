@@ -363,10 +363,14 @@ impl BundleAdjuster {
                     if slot == u32::MAX {
                         continue;
                     }
-                    let m = -(wa * self.hcl[ob as usize].transpose());
+                    // -(W_a Hcl_b^T), row-major, written out: nalgebra's generic
+                    // product of these shapes runs as iterator loops (most of BA's time).
+                    let hb = &self.hcl[ob as usize];
                     for r in 0..6 {
+                        let (w0, w1, w2) = (wa[(r, 0)], wa[(r, 1)], wa[(r, 2)]);
                         for c in 0..6 {
-                            block[r * 6 + c] = m[(r, c)];
+                            block[r * 6 + c] =
+                                -(w0 * hb[(c, 0)] + w1 * hb[(c, 1)] + w2 * hb[(c, 2)]);
                         }
                     }
                     sys.add(slot as usize, &block, false);

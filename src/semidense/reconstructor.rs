@@ -479,9 +479,9 @@ impl DepthContext<'_> {
 /// Whether two of the hypotheses pass eq. 10's compatibility test.
 fn has_compatible_pair(h: &[Hypothesis]) -> bool {
     h.iter().enumerate().any(|(i, a)| {
-        h[i + 1..].iter().any(|b| {
-            super::fusion::compatible(a.rho, a.sigma * a.sigma, b.rho, b.sigma * b.sigma)
-        })
+        h[i + 1..]
+            .iter()
+            .any(|b| super::fusion::compatible(a.rho, a.sigma * a.sigma, b.rho, b.sigma * b.sigma))
     })
 }
 
@@ -512,8 +512,16 @@ mod tests {
     fn a_compatible_pair_is_found_among_incompatible_hypotheses() {
         assert!(!has_compatible_pair(&[]));
         assert!(!has_compatible_pair(&[h(1.0, 0.01)]));
-        assert!(!has_compatible_pair(&[h(1.0, 0.01), h(1.5, 0.01), h(2.0, 0.01)]));
-        assert!(has_compatible_pair(&[h(1.0, 0.01), h(1.5, 0.01), h(1.505, 0.01)]));
+        assert!(!has_compatible_pair(&[
+            h(1.0, 0.01),
+            h(1.5, 0.01),
+            h(2.0, 0.01)
+        ]));
+        assert!(has_compatible_pair(&[
+            h(1.0, 0.01),
+            h(1.5, 0.01),
+            h(1.505, 0.01)
+        ]));
     }
 
     #[test]

@@ -211,7 +211,12 @@ fn early_rejection_keeps_points_and_accuracy() {
     let early = keyframe_stages(&SemiDenseConfig::default());
     assert!(SemiDenseConfig::default().early_reject_after > 0);
     for (e, f) in [(early.0, full.0), (early.1, full.1)] {
-        assert!(e.0 > 8_000 && e.0 < f.0, "{} points (full search {})", e.0, f.0);
+        assert!(
+            e.0 > 8_000 && e.0 < f.0,
+            "{} points (full search {})",
+            e.0,
+            f.0
+        );
         assert!(e.1 <= f.1 + 0.0005, "median {} vs {}", e.1, f.1);
         assert!(e.2 >= f.2 - 0.005, "within 2%: {} vs {}", e.2, f.2);
         assert!(e.3 <= f.3 + 0.002, "beyond 10%: {} vs {}", e.3, f.3);
