@@ -13,8 +13,9 @@ use crate::geometry::Se3;
 
 /// One neighbour's inverse-depth map, scattered into a dense buffer for lookups.
 struct NeighbourMap {
-    rho: Vec<f32>,
-    s2: Vec<f32>,
+    /// Per pixel (rho, sigma^2), interleaved so a lookup touches one cache line; sigma^2 = 0
+    /// marks no estimate.
+    est: Vec<[f32; 2]>,
     /// Pixels written, so clearing costs what filling did.
     touched: Vec<u32>,
     /// Reference camera to this neighbour's camera.
@@ -41,8 +42,7 @@ impl InterChecker {
     pub fn new(k: Intrinsics, width: usize, height: usize, capacity: usize) -> Self {
         let maps = (0..capacity)
             .map(|_| NeighbourMap {
-                rho: vec![0.0; width * height],
-                s2: vec![0.0; width * height],
+                est: vec![[0.0; 2]; width * height],
                 touched: Vec::with_capacity(width * height),
                 r_ji: Matrix3::identity(),
                 t_ji: Vector3::zeros(),
@@ -61,7 +61,7 @@ impl InterChecker {
     pub fn clear(&mut self) {
         for m in &mut self.maps[..self.active] {
             for &i in &m.touched {
-                m.s2[i as usize] = 0.0;
+                m.est[i as usize] = [0.0; 2];
             }
             m.touched.clear();
         }
@@ -81,9 +81,8 @@ impl InterChecker {
         let m = &mut self.maps[self.active];
         for p in pixels {
             let i = p.idx as usize;
-            if i < m.s2.len() {
-                m.rho[i] = p.rho;
-                m.s2[i] = p.sigma * p.sigma;
+            if i < m.est.len() {
+                m.est[i] = [p.rho, p.sigma * p.sigma];
                 m.touched.push(p.idx);
             }
         }
@@ -99,30 +98,30 @@ impl InterChecker {
         let (w, h) = (self.width, self.height);
         let (x, y) = ((idx as usize % w) as f64, (idx as usize / w) as f64);
         let ray = self.k.ray(x, y);
-        let rho = rho as f64;
+        let depth = 1.0 / rho as f64;
         let (mut support, mut num, mut den) = (0usize, 0.0f64, 0.0f64);
         for m in &self.maps[..self.active] {
             let rx = m.r_ji * ray;
             // Eq. 12: the point in j, and its inverse depth there.
-            let pj = rx / rho + m.t_ji;
+            let pj = rx * depth + m.t_ji;
             if pj.z <= 1e-9 {
                 continue;
             }
-            let u = self.k.fx * pj.x / pj.z + self.k.cx;
-            let v = self.k.fy * pj.y / pj.z + self.k.cy;
+            let rho_j = 1.0 / pj.z;
+            let u = self.k.fx * pj.x * rho_j + self.k.cx;
+            let v = self.k.fy * pj.y * rho_j + self.k.cy;
             if !(u >= 0.0 && v >= 0.0 && u < (w - 1) as f64 && v < (h - 1) as f64) {
                 continue;
             }
-            let rho_j = 1.0 / pj.z;
             let (u0, v0) = (u as usize, v as usize);
             let mut found = false;
             for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                let i = (v0 + dv) * w + u0 + du;
-                let s2 = m.s2[i] as f64;
+                let [r, s2] = m.est[(v0 + dv) * w + u0 + du];
+                let s2 = s2 as f64;
                 if s2 <= 0.0 {
                     continue;
                 }
-                let r = m.rho[i] as f64;
+                let r = r as f64;
                 let d = rho_j - r;
                 // Eq. 13.
                 if d * d / s2 < CHI2_1DOF_95 as f64 {
