@@ -1,7 +1,7 @@
 //! Per-keyframe reconstruction on preallocated image-size buffers: gradients, epipolar search
 //! in the N neighbours with hypothesis fusion (stage "depth"), then intra-keyframe checking,
-//! smoothing and growing (stage "intra"). Rows are processed in parallel on a private rayon
-//! pool of `threads` workers.
+//! smoothing and growing (stage "intra"). Bands of rows (depth stage) and rows (intra stage)
+//! are processed in parallel on a private rayon pool of `threads` workers.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
