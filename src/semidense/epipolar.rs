@@ -189,35 +189,33 @@ impl StereoPair {
             (h.x * inv_z, h.y * inv_z)
         };
         let (p0, p1) = (proj(lo), proj(hi));
+        // The segment p0 + t e, t in [0, 1]; no normalisation (a square root and a division
+        // on every search's critical path): it is walked along its major axis.
         let (ex, ey) = (p1.0 - p0.0, p1.1 - p0.1);
-        let len = (ex * ex + ey * ey).sqrt();
-        if len < 1.0 || !len.is_finite() {
+        let e2 = ex * ex + ey * ey;
+        if e2 < 1.0 || !e2.is_finite() {
             // No parallax over the prior: the match would not constrain the depth.
             return None;
         }
-        let inv_len = 1.0 / len;
-        let (dx, dy) = (ex * inv_len, ey * inv_len);
-        let (s_lo, s_hi) = clip_segment(
+        let (t_lo, t_hi) = clip_segment(
             p0,
-            (dx, dy),
-            len,
+            (ex, ey),
+            1.0,
             (2.0, (target.width - 3) as f64),
             (2.0, (target.height - 3) as f64),
         )?;
-        let (s_lo, s_hi) = match window {
-            None => (s_lo, s_hi),
+        let (t_lo, t_hi) = match window {
+            None => (t_lo, t_hi),
             Some((w_lo, w_hi)) => {
                 // The projection is monotonic along the segment (depth stays positive).
-                let s_of = |rho: f64| {
+                let t_of = |rho: f64| {
                     let q = proj(rho.clamp(lo, hi));
-                    (q.0 - p0.0) * dx + (q.1 - p0.1) * dy
+                    ((q.0 - p0.0) * ex + (q.1 - p0.1) * ey) / e2
                 };
-                let (sa, sb) = (s_of(w_lo), s_of(w_hi));
-                let (sa, sb) = if sa <= sb { (sa, sb) } else { (sb, sa) };
-                let (a_, b_) = (
-                    (sa - WINDOW_PAD_PX).max(s_lo),
-                    (sb + WINDOW_PAD_PX).min(s_hi),
-                );
+                let (ta, tb) = (t_of(w_lo), t_of(w_hi));
+                let (ta, tb) = if ta <= tb { (ta, tb) } else { (tb, ta) };
+                let pad = WINDOW_PAD_PX / e2.sqrt();
+                let (a_, b_) = ((ta - pad).max(t_lo), (tb + pad).min(t_hi));
                 if b_ < a_ {
                     return None;
                 }
@@ -226,30 +224,28 @@ impl StereoPair {
         };
         // Reference gradient orientation rotated into j, and the line direction, in steps.
         let a_ref = p.orientation.wrapping_add(self.rot) & 127;
-        let a_line = quantise_orientation(fast_atan2(dy as f32, dx as f32));
+        let a_line = quantise_orientation(fast_atan2(ey as f32, ex as f32));
         // Step one pixel along the major axis (the paper's parametrisation by u_j, or by v_j
         // for steep lines), starting on a whole pixel: every sample lies on a pixel column
         // (row), interpolated linearly along the minor axis only.
-        let horizontal = dx.abs() >= dy.abs();
+        let horizontal = ex.abs() >= ey.abs();
         let w = target.width;
         // Steep lines walk the transposed words, so consecutive samples are adjacent words.
         let (pm, pn, dm, dn, stride_n, words) = if horizontal {
-            (p0.0, p0.1, dx, dy, w, &target.packed[..])
+            (p0.0, p0.1, ex, ey, w, &target.packed[..])
         } else {
-            (p0.1, p0.0, dy, dx, target.height, &target.packed_t[..])
+            (p0.1, p0.0, ey, ex, target.height, &target.packed_t[..])
         };
         let sgn = dm.signum();
-        let (ma, mb) = (pm + dm * s_lo, pm + dm * s_hi);
+        let (ma, mb) = (pm + dm * t_lo, pm + dm * t_hi);
         let m0 = if sgn > 0.0 { ma.ceil() } else { ma.floor() };
         let span = (mb - m0) * sgn;
         if span < 0.0 {
             return None;
         }
         let n = span.floor() as usize + 1;
-        // Divisions are the slow part of this set-up: one for 1 / dm.
-        let inv_dm = 1.0 / dm;
-        let slope = dn * inv_dm.abs(); // minor change per step
-        let minor0 = pn + dn * (m0 - pm) * inv_dm;
+        let slope = dn / dm.abs(); // minor change per step
+        let minor0 = pn + slope * sgn * (m0 - pm);
         const ONE: f64 = 65536.0;
         let walk = Walk {
             major0: m0 as i32,
@@ -280,30 +276,25 @@ impl StereoPair {
         if delta.abs() > 1.0 {
             return None;
         }
-        // Back to the line parameter s: one step moves 1 / |dm| along the line.
-        let step = inv_dm.abs();
-        let s_k = (m0 + sgn * k as f64 - pm) * inv_dm;
-        // Eq. 7 (in steps, then in line length).
-        let sigma_s = (2.0 * params.sigma_i2 / denom).sqrt() as f64 * step;
-        let s_star = s_k + delta as f64 * step;
-        // Eq. 8 in whichever image coordinate moves most along the line.
-        let rho_at = |s: f64| {
-            if dx.abs() >= dy.abs() {
-                let u = p0.0 + dx * s;
-                (a.x - u * a.z) / (u * b.z - b.x)
+        // Eq. 7 in steps, i.e. in the major coordinate (one step moves it by one pixel).
+        let sigma_m = (2.0 * params.sigma_i2 / denom).sqrt() as f64;
+        let m_star = m0 + sgn * (k as f64 + delta as f64);
+        // Eq. 8 in the major coordinate (u_j for shallow lines, v_j for steep ones).
+        let rho_at = |m: f64| {
+            if horizontal {
+                (a.x - m * a.z) / (m * b.z - b.x)
             } else {
-                let v = p0.1 + dy * s;
-                (a.y - v * a.z) / (v * b.z - b.y)
+                (a.y - m * a.z) / (m * b.z - b.y)
             }
         };
-        let rho = rho_at(s_star);
+        let rho = rho_at(m_star);
         if !(rho > 0.0 && rho.is_finite()) {
             return None;
         }
         // Eq. 9.
-        let sigma = (rho_at(s_star + sigma_s) - rho)
+        let sigma = (rho_at(m_star + sigma_m) - rho)
             .abs()
-            .max((rho_at(s_star - sigma_s) - rho).abs());
+            .max((rho_at(m_star - sigma_m) - rho).abs());
         if !(sigma > 0.0 && sigma.is_finite()) {
             return None;
         }
