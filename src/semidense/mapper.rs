@@ -366,18 +366,21 @@ impl SemiDenseMapper {
         let n_obs = k.observed().count();
         let stride = n_obs.div_ceil(MAX_ANCHORS).max(1);
         for (n, (i, mp)) in k.observed().enumerate() {
-            if let Some(p) = map.point(mp) {
-                let z = k.t_cw.transform(&p.position).z;
-                if z > 0.0 && self.scratch_f32.len() < self.scratch_f32.capacity() {
-                    self.scratch_f32.push((1.0 / z) as f32);
-                }
-                if let (true, Some(kp)) = (z > 0.0, k.keypoints.get(i)) {
-                    self.prior.add(kp.ux, kp.uy, (1.0 / z) as f32);
-                }
-                if z > 0.0 && n % stride == 0 {
-                    let x = k.t_cw.transform(&p.position);
-                    let _ = anchors.push((mp, [x.x as f32, x.y as f32, x.z as f32]));
-                }
+            let Some(p) = map.point(mp) else { continue };
+            let x = k.t_cw.transform(&p.position);
+            // In front of the camera (NaN is not).
+            if x.z.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                continue;
+            }
+            let rho = (1.0 / x.z) as f32;
+            if self.scratch_f32.len() < self.scratch_f32.capacity() {
+                self.scratch_f32.push(rho);
+            }
+            if let Some(kp) = k.keypoints.get(i) {
+                self.prior.add(kp.ux, kp.uy, rho);
+            }
+            if n % stride == 0 {
+                let _ = anchors.push((mp, [x.x as f32, x.y as f32, x.z as f32]));
             }
         }
         let rho_range = prior_range(&self.scratch_f32)?;

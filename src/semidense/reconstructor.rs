@@ -438,17 +438,7 @@ impl DepthContext<'_> {
             let total = self.pairs.len();
             let mut window = None;
             for (j, (pair, img)) in self.pairs.iter().zip(self.neighbours).enumerate() {
-                // Fewer than lambda_N hypotheses possible: fusion would reject the pixel.
-                if n + (total - j) < self.lambda_n {
-                    break;
-                }
-                // Ambiguous so far: no two hypotheses agree (config `early_reject_after`);
-                // or so it will be, with no pair possible by then.
-                let reject_at = self.early_reject_after;
-                if j < reject_at && n + (reject_at - j) < 2 && reject_at <= total {
-                    break;
-                }
-                if j > 0 && j == reject_at && !has_compatible_pair(&hyps[..n]) {
+                if self.gives_up(j, total, &hyps[..n]) {
                     break;
                 }
                 if let Some(hy) = pair.search_within(
@@ -473,6 +463,24 @@ impl DepthContext<'_> {
                 out_s2[x] = s2;
             }
         }
+    }
+}
+
+impl DepthContext<'_> {
+    /// Whether searching neighbour `j` (of `total`) on, with hypotheses `h` so far, cannot
+    /// give the pixel an estimate: fewer than lambda_N hypotheses remain possible (fusion
+    /// would reject it), or it is ambiguous at the early-rejection point (config
+    /// `early_reject_after`: no two hypotheses agree), or will be (no pair can form by then).
+    fn gives_up(&self, j: usize, total: usize, h: &[Hypothesis]) -> bool {
+        let n = h.len();
+        if n + (total - j) < self.lambda_n {
+            return true;
+        }
+        let at = self.early_reject_after;
+        if at == 0 || at > total {
+            return false;
+        }
+        (j < at && n + (at - j) < 2) || (j == at && !has_compatible_pair(h))
     }
 }
 

@@ -287,15 +287,14 @@ unsafe fn scan_avx2_with<const SHALLOW: bool>(
             _mm256_mul_ps(_mm256_mul_ps(rg, rg), k_g),
         );
         // Per lane, keep the first minimum (strictly smaller replaces); lanes past the end
-        // of the walk (last step only) are dropped.
-        let mut better = _mm256_and_si256(
-            _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(e, best_e)),
-            ok,
-        );
-        if k0 + 8 > walk.n {
-            better = _mm256_and_si256(better, live);
-        }
-        let better = _mm256_castsi256_ps(better);
+        // of the walk are dropped.
+        let better = _mm256_castsi256_ps(_mm256_and_si256(
+            _mm256_and_si256(
+                _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(e, best_e)),
+                ok,
+            ),
+            live,
+        ));
         best_e = _mm256_blendv_ps(best_e, e, better);
         best_k = _mm256_castps_si256(_mm256_blendv_ps(
             _mm256_castsi256_ps(best_k),
