@@ -34,6 +34,9 @@ mod mapping_thread;
 use backfill::{Backfill, BACKFILL_PER_FRAME};
 use mapping_thread::{spawn_mapper, Mapping};
 
+/// Frames slower than this are logged (debug) with their stage times.
+const SLOW_FRAME: std::time::Duration = std::time::Duration::from_millis(20);
+
 /// What happened to one frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameResult {
@@ -432,7 +435,8 @@ impl System {
         f.timestamp = timestamp;
         let te = Instant::now();
         self.extractor.extract(gray, None, &mut f.features);
-        self.stats.orb_extraction.record(te.elapsed());
+        let orb_time = te.elapsed();
+        self.stats.orb_extraction.record(orb_time);
         f.reset_matches();
         // The map is locked for tracking only (extraction runs unlocked).
         let map_arc = Arc::clone(&self.map);
@@ -440,7 +444,8 @@ impl System {
         let wanted = self.map_wanted.busy();
         let mut map_guard = lock(&map_arc);
         drop(wanted);
-        self.stats.map_lock_wait.record(tl.elapsed());
+        let lock_time = tl.elapsed();
+        self.stats.map_lock_wait.record(lock_time);
         let map = &mut *map_guard;
         let mut new_keyframe = false;
         let state = if self.tracker.state == TrackingState::NotInitialised {
@@ -470,8 +475,20 @@ impl System {
             }
             self.tracker.state
         };
+        let total = t0.elapsed();
         if !new_keyframe {
-            self.stats.tracking.record(t0.elapsed());
+            self.stats.tracking.record(total);
+        }
+        if total > SLOW_FRAME {
+            // Which stage a slow frame spent its time in (the report has percentiles only).
+            tracing::debug!(
+                frame = index,
+                total_ms = total.as_secs_f64() * 1e3,
+                orb_ms = orb_time.as_secs_f64() * 1e3,
+                lock_wait_ms = lock_time.as_secs_f64() * 1e3,
+                keyframe = new_keyframe,
+                "slow frame"
+            );
         }
         let mut t_wc = None;
         if state == TrackingState::Ok {

@@ -25,6 +25,26 @@ impl Intrinsics {
         Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
     }
 
+    /// The pixel-to-pixel form of `t_ji` (camera i to camera j): `(K R K^-1, K t)`, so a pixel
+    /// x of i at inverse depth rho lands at the homogeneous pixel `K R K^-1 x + rho K t` of j
+    /// (that is K X_j / depth_i, whose third coordinate is depth_j / depth_i).
+    pub fn pixel_transform(&self, t_ji: &Se3) -> (Matrix3<f64>, Vector3<f64>) {
+        let km = self.k();
+        let kinv = Matrix3::new(
+            1.0 / self.fx,
+            0.0,
+            -self.cx / self.fx,
+            0.0,
+            1.0 / self.fy,
+            -self.cy / self.fy,
+            0.0,
+            0.0,
+            1.0,
+        );
+        let r = t_ji.rotation.to_rotation_matrix();
+        (km * r.matrix() * kinv, km * t_ji.translation.vector)
+    }
+
     /// The unit-depth ray `K^-1 x` through pixel (u, v).
     #[inline]
     pub fn ray(&self, u: f64, v: f64) -> Vector3<f64> {
@@ -106,22 +126,9 @@ impl StereoPair {
     /// `t_ji` maps points from i's camera frame to j's; `delta_theta` (radians) is the median
     /// ORB angle change from i to j.
     pub fn new(k: &Intrinsics, t_ji: &Se3, delta_theta: f64) -> Self {
-        let km = k.k();
-        let kinv = Matrix3::new(
-            1.0 / k.fx,
-            0.0,
-            -k.cx / k.fx,
-            0.0,
-            1.0 / k.fy,
-            -k.cy / k.fy,
-            0.0,
-            0.0,
-            1.0,
-        );
-        let r = t_ji.rotation.to_rotation_matrix();
-        let kt = km * t_ji.translation.vector;
+        let (kr, kt) = k.pixel_transform(t_ji);
         StereoPair {
-            kr: km * r.matrix() * kinv,
+            kr,
             kt,
             rot: quantise_orientation(delta_theta as f32),
             inv_kt_z: 1.0 / kt.z,

@@ -12,15 +12,34 @@ use super::DepthPixel;
 use crate::geometry::Se3;
 
 /// One neighbour's inverse-depth map, scattered into a dense buffer for lookups.
-struct NeighbourMap {
+pub struct NeighbourMap {
     /// Per pixel (rho, sigma^2), interleaved so a lookup touches one cache line; sigma^2 = 0
     /// marks no estimate.
     est: Vec<[f32; 2]>,
     /// Pixels written, so clearing costs what filling did.
     touched: Vec<u32>,
-    /// Reference camera to this neighbour's camera.
-    r_ji: Matrix3<f64>,
-    t_ji: Vector3<f64>,
+    /// Reference pixels to this neighbour's pixels: `K R_ji K^-1` and `K t_ji`.
+    kr: Matrix3<f64>,
+    kt: Vector3<f64>,
+}
+
+impl NeighbourMap {
+    /// Replaces the map by `pixels` (intra-checked estimates), with `t_ji` mapping reference
+    /// camera points into this neighbour; clears only the pixels the previous fill set.
+    pub fn fill(&mut self, k: &Intrinsics, pixels: impl Iterator<Item = DepthPixel>, t_ji: &Se3) {
+        for &i in &self.touched {
+            self.est[i as usize] = [0.0; 2];
+        }
+        self.touched.clear();
+        for p in pixels {
+            let i = p.idx as usize;
+            if i < self.est.len() {
+                self.est[i] = [p.rho, p.sigma * p.sigma];
+                self.touched.push(p.idx);
+            }
+        }
+        (self.kr, self.kt) = k.pixel_transform(t_ji);
+    }
 }
 
 /// Holds up to `capacity` neighbour maps of one image size; reused across keyframes.
@@ -44,8 +63,8 @@ impl InterChecker {
             .map(|_| NeighbourMap {
                 est: vec![[0.0; 2]; width * height],
                 touched: Vec::with_capacity(width * height),
-                r_ji: Matrix3::identity(),
-                t_ji: Vector3::zeros(),
+                kr: Matrix3::identity(),
+                kt: Vector3::zeros(),
             })
             .collect();
         InterChecker {
@@ -57,19 +76,20 @@ impl InterChecker {
         }
     }
 
-    /// Forgets every neighbour (clears only the pixels that were set).
+    /// Forgets every neighbour (their maps are cleared when refilled).
     pub fn clear(&mut self) {
-        for m in &mut self.maps[..self.active] {
-            for &i in &m.touched {
-                m.est[i as usize] = [0.0; 2];
-            }
-            m.touched.clear();
-        }
         self.active = 0;
     }
 
     pub fn neighbours(&self) -> usize {
         self.active
+    }
+
+    /// Forgets the neighbours and returns the maps of the next `n` (at most the capacity),
+    /// each to be filled with [`NeighbourMap::fill`]: independent, so in parallel if wanted.
+    pub fn begin(&mut self, n: usize) -> &mut [NeighbourMap] {
+        self.active = n.min(self.maps.len());
+        &mut self.maps[..self.active]
     }
 
     /// Adds a neighbour's (intra-checked) inverse-depth map with `t_ji` mapping reference
@@ -78,16 +98,7 @@ impl InterChecker {
         if self.active == self.maps.len() {
             return false;
         }
-        let m = &mut self.maps[self.active];
-        for p in pixels {
-            let i = p.idx as usize;
-            if i < m.est.len() {
-                m.est[i] = [p.rho, p.sigma * p.sigma];
-                m.touched.push(p.idx);
-            }
-        }
-        m.r_ji = *t_ji.rotation.to_rotation_matrix().matrix();
-        m.t_ji = t_ji.translation.vector;
+        self.maps[self.active].fill(&self.k, pixels, t_ji);
         self.active += 1;
         true
     }
@@ -96,43 +107,43 @@ impl InterChecker {
     /// inverse depth when at least `lambda_n` neighbours support it.
     pub fn check(&self, idx: u32, rho: f32, lambda_n: usize) -> Option<f32> {
         let (w, h) = (self.width, self.height);
-        let (x, y) = ((idx as usize % w) as f64, (idx as usize / w) as f64);
-        let ray = self.k.ray(x, y);
-        let depth = 1.0 / rho as f64;
+        let x = Vector3::new((idx as usize % w) as f64, (idx as usize / w) as f64, 1.0);
+        let rho = rho as f64;
+        let (u_max, v_max) = ((w - 1) as f64, (h - 1) as f64);
         let (mut support, mut num, mut den) = (0usize, 0.0f64, 0.0f64);
         for m in &self.maps[..self.active] {
-            let rx = m.r_ji * ray;
-            // Eq. 12: the point in j, and its inverse depth there.
-            let pj = rx * depth + m.t_ji;
-            if pj.z <= 1e-9 {
+            // Eq. 12 in pixels: K X_j / depth_i = a + rho K t with a = K R K^-1 x, so the
+            // point's inverse depth in j is rho / h.z and its pixel (h.x, h.y) / h.z.
+            let a = m.kr * x;
+            let hp = a + m.kt * rho;
+            if hp.z <= 1e-9 * rho {
                 continue;
             }
-            let rho_j = 1.0 / pj.z;
-            let u = self.k.fx * pj.x * rho_j + self.k.cx;
-            let v = self.k.fy * pj.y * rho_j + self.k.cy;
-            if !(u >= 0.0 && v >= 0.0 && u < (w - 1) as f64 && v < (h - 1) as f64) {
+            let inv = 1.0 / hp.z;
+            let (u, v) = (hp.x * inv, hp.y * inv);
+            if !(u >= 0.0 && v >= 0.0 && u < u_max && v < v_max) {
                 continue;
             }
+            let rho_j = rho * inv;
             let (u0, v0) = (u as usize, v as usize);
             let mut found = false;
             for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
                 let [r, s2] = m.est[(v0 + dv) * w + u0 + du];
-                let s2 = s2 as f64;
                 if s2 <= 0.0 {
                     continue;
                 }
-                let r = r as f64;
+                let (r, s2) = (r as f64, s2 as f64);
                 let d = rho_j - r;
                 // Eq. 13.
-                if d * d / s2 < CHI2_1DOF_95 as f64 {
+                if d * d < CHI2_1DOF_95 as f64 * s2 {
                     found = true;
-                    // Eq. 14 terms: depth residual d_jn - d_p (r_z . X_p) - t_z, weighted by
-                    // the inverse depth variance propagated to depth (d^4 sigma^2).
-                    let dj = 1.0 / r;
-                    let wgt = 1.0 / (dj * dj * dj * dj * s2);
-                    let a = rx.z;
-                    num += wgt * a * (dj - m.t_ji.z);
-                    den += wgt * a * a;
+                    // Eq. 14 terms: depth residual d_jn - d_p (r_z . X_p) - t_z, with
+                    // d_jn = 1 / r, r_z . X_p = a.z (K's last row is (0, 0, 1)), weighted by
+                    // the inverse depth variance propagated to depth (d_jn^4 sigma^2):
+                    // weight r^4 / s2, so the terms are a.z r^3 (1 - r t_z) / s2, a.z^2 r^4 / s2.
+                    let r3_s2 = r * r * r / s2;
+                    num += a.z * r3_s2 * (1.0 - r * m.kt.z);
+                    den += a.z * a.z * r3_s2 * r;
                 }
             }
             if found {

@@ -14,7 +14,7 @@ use super::{
     RegionalPrior, MAX_NEIGHBOURS,
 };
 use crate::config::SemiDenseConfig;
-use crate::geometry::CameraFromWorld;
+use crate::geometry::{CameraFromWorld, Se3};
 use crate::io::CloudPoint;
 use crate::map::{KeyFrameId, Map, MapPointId};
 use crate::runtime::StageTimer;
@@ -495,23 +495,34 @@ impl SemiDenseMapper {
             let m = map.lock().unwrap_or_else(|p| p.into_inner());
             self.refresh_poses(&m, e);
         }
-        self.inter.clear();
         let me = &self.entries[e];
+        // The neighbours' maps, in today's map scale (depth x scale), each filled by a task
+        // of the worker pool.
+        let mut jobs: heapless::Vec<(usize, usize, f32, Se3), MAX_NEIGHBOURS> =
+            heapless::Vec::new();
         for n in &me.neighbours {
-            let Some(d) = self.entries.iter().find(|d| d.keyframe == *n) else {
-                continue;
-            };
-            let t_ji = d.t_cw.0 * me.t_cw.0.inverse();
-            // Inverse depths in today's map scale (depth x scale).
-            let s = 1.0 / d.scale;
-            let pixels = self.arena[d.start..d.start + d.len].iter().map(|p| {
-                let mut r = p.raw;
-                r.rho *= s;
-                r.sigma *= s;
-                r
-            });
-            self.inter.add_neighbour(pixels, &t_ji);
+            if let Some(d) = self.entries.iter().find(|d| d.keyframe == *n) {
+                let t_ji = d.t_cw.0 * me.t_cw.0.inverse();
+                let _ = jobs.push((d.start, d.len, 1.0 / d.scale, t_ji));
+            }
         }
+        let (arena, k) = (&self.arena, self.reconstructor.k);
+        let mut work: heapless::Vec<_, MAX_NEIGHBOURS> = heapless::Vec::new();
+        for pair in self.inter.begin(jobs.len()).iter_mut().zip(&jobs) {
+            let _ = work.push(pair);
+        }
+        self.reconstructor
+            .par_for_each(&mut work, 1, |(m, (start, len, s, t_ji))| {
+                let pixels = arena[*start..*start + *len].iter().map(|p| {
+                    let mut r = p.raw;
+                    r.rho *= s;
+                    r.sigma *= s;
+                    r
+                });
+                m.fill(&k, pixels, t_ji);
+            });
+        drop(work);
+        let me = &self.entries[e];
         let (start, len, scale) = (me.start, me.len, me.scale);
         let lambda_n = self.config.lambda_n;
         let inter = &self.inter;
