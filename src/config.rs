@@ -130,9 +130,12 @@ pub struct SemiDenseConfig {
     /// Run the semi-dense threads in Linux's SCHED_IDLE class (only on otherwise idle CPUs;
     /// a waking tracking thread preempts them at once).
     pub sched_idle: bool,
-    /// Semi-dense workers wait between image rows while a frame is being tracked (the 2 vCPUs
-    /// share execution units: a busy sibling slows tracking ~1.8x). Semi-dense mapping lags
-    /// instead (reported as `semidense_finish_s`); tracking keeps its deadline.
+    /// Semi-dense workers also wait between blocks of pixels while a frame is being tracked
+    /// (not only yield the CPU, as SCHED_IDLE does). Off by default: since ORB extraction
+    /// runs on both cores, a frame leaves one core idle only while tracking is
+    /// single-threaded, and 15 paired desk runs showed no effect of the wait on tracking
+    /// (p50 7.0 vs 7.1 ms, same misses) but 6% slower keyframes (docs/DECISIONS.md). For CPUs
+    /// whose cores share execution units (SMT siblings) turn it on.
     pub yield_to_tracking: bool,
     /// CPUs for the semi-dense thread and its workers; empty = no pinning.
     pub cpus: Vec<usize>,
@@ -162,7 +165,7 @@ impl Default for SemiDenseConfig {
             prior_min_points: 6,
             nice: 10,
             sched_idle: true,
-            yield_to_tracking: true,
+            yield_to_tracking: false,
             cpus: Vec::new(),
             min_baseline_ratio: 0.05,
             max_points: 8_000_000,

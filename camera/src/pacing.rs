@@ -133,6 +133,10 @@ fn produce<S: FrameSource>(
     let start = Instant::now();
     let mut t0: Option<f64> = None;
     let mut recycled: Option<Frame> = None;
+    // Real time: when to start reading (decoding) the next frame, and how long a read takes.
+    let mut read_at: Option<Instant> = None;
+    let mut last_due: Option<Instant> = None;
+    let mut read_time = Duration::from_millis(5);
     loop {
         if stop.load(Ordering::Relaxed) {
             return;
@@ -146,9 +150,20 @@ fn produce<S: FrameSource>(
                 None => return,
             },
         };
+        // A camera's frame costs the consumer nothing before it is due, so a replay decodes
+        // the next frame just before then, not right after releasing this one, when the
+        // consumer is busiest with it (decoding a 640x480 JPEG takes a core for ~4 ms).
+        if let Some(at) = read_at.take() {
+            let now = Instant::now();
+            if at > now {
+                std::thread::sleep(at - now);
+            }
+        }
+        let t_read = Instant::now();
         let msg = match source.next_frame(&mut buf) {
             Ok(FrameStatus::Ready) => {
                 if let Pacing::RealTime { speed } = pacing {
+                    read_time = (read_time * 3 + t_read.elapsed()) / 4;
                     let t0 = *t0.get_or_insert(buf.timestamp);
                     let due = start
                         + Duration::from_secs_f64(
@@ -158,6 +173,13 @@ fn produce<S: FrameSource>(
                     if due > now {
                         std::thread::sleep(due - now);
                     }
+                    // The next frame is expected one interval later; its read starts twice
+                    // a read's time (plus 2 ms for jitter) before that.
+                    if let Some(prev) = last_due.filter(|p| due > *p) {
+                        let lead = read_time * 2 + Duration::from_millis(2);
+                        read_at = (due + (due - prev)).checked_sub(lead);
+                    }
+                    last_due = Some(due);
                 }
                 buf.arrival = Some(Instant::now());
                 Msg::Frame(buf)
@@ -452,6 +474,43 @@ mod tests {
             "{:?}",
             t.elapsed()
         );
+    }
+
+    /// A counter that notes when each frame was read.
+    struct Timed(Counter, Arc<std::sync::Mutex<Vec<Instant>>>);
+
+    impl FrameSource for Timed {
+        fn info(&self) -> &SourceInfo {
+            self.0.info()
+        }
+        fn next_frame(&mut self, out: &mut Frame) -> Result<FrameStatus, SourceError> {
+            self.1.lock().unwrap().push(Instant::now());
+            self.0.next_frame(out)
+        }
+    }
+
+    #[test]
+    fn real_time_reads_each_frame_shortly_before_it_is_due() {
+        let reads = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let c = Timed(Counter::new(8, 20.0), Arc::clone(&reads));
+        let mut p = PacedSource::spawn(c, Pacing::RealTime { speed: 1.0 }).unwrap();
+        let mut f = Frame::new(4, 2);
+        let mut released = Vec::new();
+        while let FrameStatus::Ready = p.next_frame(&mut f).unwrap() {
+            released.push(f.arrival.unwrap());
+        }
+        assert_eq!(released.len(), 8);
+        let reads = reads.lock().unwrap();
+        // From the third frame on (two releases give the interval), a read starts well after
+        // the previous release (50 ms apart; a read takes microseconds here), not at once.
+        for k in 2..8 {
+            let gap = reads[k].duration_since(released[k - 1]);
+            assert!(
+                gap > Duration::from_millis(20),
+                "frame {k}: read {gap:?} after the last release"
+            );
+            assert!(released[k] >= reads[k]);
+        }
     }
 
     #[test]

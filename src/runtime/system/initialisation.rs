@@ -11,6 +11,7 @@ impl System {
     ) -> TrackingState {
         let mut ready = None;
         let k = self.camera.k();
+        let t_attempt = std::time::Instant::now();
         if self.init.attempt(&self.frame, gray, rgb, &k, &mut ready) != InitAttempt::Ready {
             return TrackingState::NotInitialised;
         }
@@ -56,7 +57,9 @@ impl System {
         }
         map.update_connections(kf0);
         map.update_connections(kf1);
-        self.global_ba(map, 20);
+        // (The initialiser refined the two views with their own BA: a map of two keyframes
+        // has nothing for a global BA to add.)
+        let attempt_ms = t_attempt.elapsed().as_secs_f64() * 1e3;
         // Scale the map to median depth 1.
         let Some(median) = median_depth(map, kf0).filter(|m| *m > 0.0) else {
             map.reset();
@@ -91,6 +94,7 @@ impl System {
         tracing::info!(
             frame = self.frame.index,
             points = map.n_points(),
+            attempt_ms,
             "map initialised"
         );
         self.stats.keyframes_created += 2;
