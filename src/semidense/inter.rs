@@ -86,7 +86,7 @@ impl InterChecker {
     }
 
     /// Forgets the neighbours and returns the maps of the next `n` (at most the capacity),
-    /// each to be filled with [`NeighbourMap::fill`]: independent, so in parallel if wanted.
+    /// each to be filled with `NeighbourMap::fill`: independent, so in parallel if wanted.
     pub fn begin(&mut self, n: usize) -> &mut [NeighbourMap] {
         self.active = n.min(self.maps.len());
         &mut self.maps[..self.active]
