@@ -136,6 +136,61 @@ pub fn search_by_projection(
     n
 }
 
+/// Whether `k2` may match a keypoint whose epipolar line in keyframe 2 is `l` (`ln` the norm
+/// of its first two coordinates): within 3.84 sigma² of its level from the line, and not
+/// within 10 sigma of the epipole (no parallax there).
+#[inline]
+fn on_epipolar_line(
+    k2: &KeyPoint,
+    l: &Vector3<f64>,
+    ln: f64,
+    epipole2: Option<Vector2<f64>>,
+    sigma2: &[f64],
+) -> bool {
+    let s2 = sigma2[k2.octave as usize];
+    if let Some(e) = epipole2 {
+        let (dx, dy) = (k2.ux as f64 - e.x, k2.uy as f64 - e.y);
+        if dx * dx + dy * dy < 100.0 * s2 {
+            return false;
+        }
+    }
+    let dist = (l.x * k2.ux as f64 + l.y * k2.uy as f64 + l.z) / ln;
+    dist * dist < 3.84 * s2
+}
+
+/// Each keypoint of keyframe 2 goes to the keypoint of 1 that found it at the smallest
+/// distance (the first of equals).
+struct Claims {
+    best: Vec<u32>,
+    by: Vec<Option<u32>>,
+}
+
+impl Claims {
+    fn new(n2: usize) -> Self {
+        Claims {
+            best: vec![u32::MAX; n2],
+            by: vec![None; n2],
+        }
+    }
+
+    /// Keypoint `i` of 1 found `j` of 2 (`usize::MAX`: none) at distance `d`.
+    fn offer(&mut self, j: usize, d: u32, i: usize) {
+        if j != usize::MAX && d < self.best[j] {
+            self.best[j] = d;
+            self.by[j] = Some(i as u32);
+        }
+    }
+
+    /// The pairs (i1, i2) in the order of keyframe 2, appended to `out`.
+    fn pairs_into(&self, out: &mut Vec<(u32, u32)>) {
+        for (j, c) in self.by.iter().enumerate() {
+            if let Some(i) = c {
+                out.push((*i, j as u32));
+            }
+        }
+    }
+}
+
 /// Epipolar search between two keyframes for triangulation: for each keypoint of keyframe 1
 /// without a map point, the best keypoint of keyframe 2 (also free) whose distance to the
 /// epipolar line is below 3.84 sigma² of its level and that is not too close to the epipole.
@@ -160,8 +215,7 @@ pub fn search_for_triangulation(
     out: &mut Vec<(u32, u32)>,
 ) {
     out.clear();
-    let mut taken = vec![u32::MAX; kps2.len()]; // best distance claiming each keypoint of 2
-    let mut claim: Vec<Option<u32>> = vec![None; kps2.len()];
+    let mut claims = Claims::new(kps2.len());
     // The free keypoints of 2, their positions apart (structure of arrays).
     let free: Vec<u32> = (0..kps2.len() as u32)
         .filter(|&j| free2[j as usize])
@@ -194,34 +248,16 @@ pub fn search_for_triangulation(
                 let k = 8 * w + (bits.trailing_zeros() / 8) as usize;
                 bits &= bits - 1;
                 let j = free[k] as usize;
-                let k2 = &kps2[j];
                 let d = hamming(&desc1[i], &desc2[j]);
-                if d > best {
-                    continue;
-                }
-                if let Some(e) = epipole2 {
-                    let (dx, dy) = (k2.ux as f64 - e.x, k2.uy as f64 - e.y);
-                    if dx * dx + dy * dy < 100.0 * sigma2[k2.octave as usize] {
-                        continue;
-                    }
-                }
-                let dist = (l.x * k2.ux as f64 + l.y * k2.uy as f64 + l.z) / ln;
-                if dist * dist < 3.84 * sigma2[k2.octave as usize] {
+                if d <= best && on_epipolar_line(&kps2[j], &l, ln, epipole2, sigma2) {
                     best = d;
                     best_j = j;
                 }
             }
         }
-        if best_j != usize::MAX && best < taken[best_j] {
-            taken[best_j] = best;
-            claim[best_j] = Some(i as u32);
-        }
+        claims.offer(best_j, best, i);
     }
-    for (j, c) in claim.iter().enumerate() {
-        if let Some(i) = c {
-            out.push((*i, j as u32));
-        }
-    }
+    claims.pairs_into(out);
     if check_orientation && !out.is_empty() {
         let mut rot = RotationHistogram::default();
         for (k, &(i, j)) in out.iter().enumerate() {
@@ -255,39 +291,23 @@ mod tests {
         epipole2: Option<Vector2<f64>>,
         sigma2: &[f64],
     ) -> Vec<(u32, u32)> {
-        let mut taken = vec![u32::MAX; kps2.len()];
-        let mut claim = vec![None; kps2.len()];
+        let mut claims = Claims::new(kps2.len());
         for (i, k1) in kps1.iter().enumerate() {
             let l = f21 * Vector3::new(k1.ux as f64, k1.uy as f64, 1.0);
             let ln = (l.x * l.x + l.y * l.y).sqrt();
             let (mut best, mut best_j) = (TH_LOW, usize::MAX);
             for (j, k2) in kps2.iter().enumerate() {
                 let d = hamming(&desc1[i], &desc2[j]);
-                if !free2[j] || d > best {
-                    continue;
-                }
-                if let Some(e) = epipole2 {
-                    let (dx, dy) = (k2.ux as f64 - e.x, k2.uy as f64 - e.y);
-                    if dx * dx + dy * dy < 100.0 * sigma2[k2.octave as usize] {
-                        continue;
-                    }
-                }
-                let dist = (l.x * k2.ux as f64 + l.y * k2.uy as f64 + l.z) / ln;
-                if dist * dist < 3.84 * sigma2[k2.octave as usize] {
+                if free2[j] && d <= best && on_epipolar_line(k2, &l, ln, epipole2, sigma2) {
                     best = d;
                     best_j = j;
                 }
             }
-            if best_j != usize::MAX && best < taken[best_j] {
-                taken[best_j] = best;
-                claim[best_j] = Some(i as u32);
-            }
+            claims.offer(best_j, best, i);
         }
-        claim
-            .iter()
-            .enumerate()
-            .filter_map(|(j, c)| c.map(|i| (i, j as u32)))
-            .collect()
+        let mut out = Vec::new();
+        claims.pairs_into(&mut out);
+        out
     }
 
     #[test]

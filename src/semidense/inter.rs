@@ -85,11 +85,12 @@ impl InterChecker {
         self.active
     }
 
-    /// Forgets the neighbours and returns the maps of the next `n` (at most the capacity),
-    /// each to be filled with `NeighbourMap::fill`: independent, so in parallel if wanted.
-    pub fn begin(&mut self, n: usize) -> &mut [NeighbourMap] {
+    /// Forgets the neighbours and returns the intrinsics and the maps of the next `n` (at
+    /// most the capacity), each to be filled with `NeighbourMap::fill`: independent, so in
+    /// parallel if wanted.
+    pub fn begin(&mut self, n: usize) -> (Intrinsics, &mut [NeighbourMap]) {
         self.active = n.min(self.maps.len());
-        &mut self.maps[..self.active]
+        (self.k, &mut self.maps[..self.active])
     }
 
     /// Adds a neighbour's (intra-checked) inverse-depth map with `t_ji` mapping reference

@@ -506,9 +506,10 @@ impl SemiDenseMapper {
                 let _ = jobs.push((d.start, d.len, 1.0 / d.scale, t_ji));
             }
         }
-        let (arena, k) = (&self.arena, self.reconstructor.k);
+        let arena = &self.arena;
+        let (k, maps) = self.inter.begin(jobs.len());
         let mut work: heapless::Vec<_, MAX_NEIGHBOURS> = heapless::Vec::new();
-        for pair in self.inter.begin(jobs.len()).iter_mut().zip(&jobs) {
+        for pair in maps.iter_mut().zip(&jobs) {
             let _ = work.push(pair);
         }
         self.reconstructor
@@ -521,8 +522,7 @@ impl SemiDenseMapper {
                 });
                 m.fill(&k, pixels, t_ji);
             });
-        drop(work);
-        let me = &self.entries[e];
+        drop(work); // ends the borrow of the maps before the check reads them
         let (start, len, scale) = (me.start, me.len, me.scale);
         let lambda_n = self.config.lambda_n;
         let inter = &self.inter;
