@@ -59,21 +59,25 @@ fn max(a: &Lanes, b: &Lanes) -> Lanes {
 
 /// Per lane: the best (over the 16 cyclic arcs of 9) of the smallest difference on the arc.
 /// With `d[k]` the saturated difference of circle pixel k from the centre, a lane is a corner at
-/// threshold t exactly when the result exceeds t.
+/// threshold t exactly when the result exceeds t. The 9-arcs starting at k - 1 and k share the
+/// 8-window starting at k, so 8-windows at even k, each closed by the larger of its two end
+/// pixels, cover all 16 arcs: 48 min/max instead of 80.
 #[inline(always)]
 fn best_arc_min(d: &[Lanes; 16]) -> Lanes {
-    let mut m2 = [[0u8; LANES]; 16];
-    for k in 0..16 {
-        m2[k] = min(&d[k], &d[(k + 1) & 15]);
+    let mut m2 = [[0u8; LANES]; 8];
+    for j in 0..8 {
+        m2[j] = min(&d[2 * j], &d[2 * j + 1]);
     }
-    let mut m4 = [[0u8; LANES]; 16];
-    for k in 0..16 {
-        m4[k] = min(&m2[k], &m2[(k + 2) & 15]);
+    let mut m4 = [[0u8; LANES]; 8];
+    for j in 0..8 {
+        m4[j] = min(&m2[j], &m2[(j + 1) & 7]);
     }
     let mut acc = [0u8; LANES];
-    for k in 0..16 {
-        let m8 = min(&m4[k], &m4[(k + 4) & 15]);
-        acc = max(&acc, &min(&m8, &d[(k + 8) & 15]));
+    for j in 0..8 {
+        let k = 2 * j;
+        let m8 = min(&m4[j], &m4[(j + 2) & 7]);
+        let ends = max(&d[(k + 15) & 15], &d[(k + 8) & 15]);
+        acc = max(&acc, &min(&m8, &ends));
     }
     acc
 }
