@@ -422,15 +422,22 @@ fn select_corners(
     let r = &lane.responses;
     let sel = &lane.selected;
     let strong = |k: u32| corners[sel[k as usize] as usize].score >= s.config.ini_th_fast;
-    lane.order.sort_unstable_by(|&a, &b| {
+    let rank = |&a: &u32, &b: &u32| {
         strong(b)
             .cmp(&strong(a))
             .then(r[b as usize].total_cmp(&r[a as usize]))
             .then(a.cmp(&b))
-    });
+    };
     match s.config.distribution {
-        OrbDistribution::Quadtree | OrbDistribution::Strongest => lane.order.truncate(wanted),
+        OrbDistribution::Quadtree | OrbDistribution::Strongest => {
+            // The `wanted` best, in any order (sorted by index below): a partition is enough.
+            if lane.order.len() > wanted {
+                lane.order.select_nth_unstable_by(wanted, rank);
+                lane.order.truncate(wanted);
+            }
+        }
         OrbDistribution::Radius => {
+            lane.order.sort_unstable_by(rank);
             lane.pts.clear();
             lane.pts.extend(
                 lane.selected
