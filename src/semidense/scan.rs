@@ -377,27 +377,25 @@ unsafe fn scan_avx512(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u3
         let near = if r_hi - r_lo < LOAD_ROWS_MAX {
             let base = t.as_ptr() as *const i32;
             if walk.major_step > 0 {
-                let mut near = _mm512_setzero_si512();
-                for r in r_lo..=r_hi {
+                let load = |near, r: i32| {
                     let m = live & _mm512_cmpeq_epi32_mask(row, _mm512_set1_epi32(r));
                     let p = base.wrapping_offset(major_first + r as isize * walk.stride_n as isize);
-                    near = _mm512_mask_loadu_epi32(near, m, p);
-                }
-                near
+                    _mm512_mask_loadu_epi32(near, m, p)
+                };
+                rows_fold(r_lo, r_hi, _mm512_setzero_si512(), load)
             } else {
                 // Lane l reads the word at major_first - l: load the 16 words ending there
                 // and reverse them.
                 let rev = _mm512_setr_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0);
                 let row_r = _mm512_permutexvar_epi32(rev, row);
                 let live_r = live.reverse_bits();
-                let mut near = _mm512_setzero_si512();
-                for r in r_lo..=r_hi {
+                let load = |near, r: i32| {
                     let m = live_r & _mm512_cmpeq_epi32_mask(row_r, _mm512_set1_epi32(r));
                     let p = base
                         .wrapping_offset(major_first - 15 + r as isize * walk.stride_n as isize);
-                    near = _mm512_mask_loadu_epi32(near, m, p);
-                }
-                _mm512_permutexvar_epi32(rev, near)
+                    _mm512_mask_loadu_epi32(near, m, p)
+                };
+                _mm512_permutexvar_epi32(rev, rows_fold(r_lo, r_hi, _mm512_setzero_si512(), load))
             }
         } else {
             let idx = _mm512_add_epi32(major, _mm512_mullo_epi32(row, stride_n));
@@ -439,6 +437,18 @@ unsafe fn scan_avx512(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u3
         k0 += 16;
     }
     finish(reduce_avx512(best_e, best_k), walk, probe, params, t)
+}
+
+/// Folds `load` over rows `r_lo..=r_hi`. Shallow lines cross one or two rows per sixteen
+/// samples, unpredictably: both are loaded without a loop (a load whose mask is empty reads
+/// nothing), so the loop's exit no longer mispredicts.
+#[inline(always)]
+fn rows_fold<V>(r_lo: i32, r_hi: i32, init: V, mut load: impl FnMut(V, i32) -> V) -> V {
+    if r_hi - r_lo <= 1 {
+        let v = load(init, r_lo);
+        return load(v, r_lo + 1);
+    }
+    (r_lo..=r_hi).fold(init, load)
 }
 
 /// [`reduce_avx2`] on sixteen lanes (a scalar loop over them mispredicted once per search).
