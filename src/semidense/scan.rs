@@ -132,15 +132,14 @@ const NONE: Best = Best {
 pub(super) fn scan_scalar(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
     let (pg_fixed, k_g) = ranking_constants(probe, params);
     let mut best = NONE;
+    // Without branches on the sample (whether it passes is data and mispredicts): every
+    // sample's error is computed and taken by selection.
     for k in 0..walk.n {
         let v = t[nearest(k, walk)];
-        if passes((v & 255) as u8, probe, params) {
-            let e = ranking_error(v, probe.intensity, pg_fixed, k_g);
-            if e < best.e {
-                best.e = e;
-                best.k = k;
-            }
-        }
+        let e = ranking_error(v, probe.intensity, pg_fixed, k_g);
+        let take = passes((v & 255) as u8, probe, params) & (e < best.e);
+        best.e = if take { e } else { best.e };
+        best.k = if take { k } else { best.k };
     }
     finish(best, walk, probe, params, t)
 }
