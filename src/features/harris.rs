@@ -11,6 +11,11 @@ pub const HARRIS_K: f32 = 0.04;
 
 /// Lanes per row: the 7 window columns and one unused.
 const L: usize = 8;
+/// Pixels read on each side of the keypoint: the window's half-width plus the Sobel tap.
+const REACH: isize = HARRIS_BLOCK as isize / 2 + 1;
+/// Rows read (window plus a Sobel row above and below), and bytes read per row (L + 2 taps).
+const ROWS: usize = 2 * REACH as usize + 1;
+const ROW_BYTES: usize = L + 2;
 
 /// `det(M) - k trace(M)²` of the structure tensor `M` of 3x3 Sobel gradients summed over the
 /// 7x7 window centred on (x, y). Needs 4 pixels of image or border around (x, y).
@@ -18,15 +23,14 @@ const L: usize = 8;
 pub fn harris_response(img: &PaddedImage, x: isize, y: isize) -> f32 {
     #[cfg(all(target_arch = "x86_64", target_feature = "sse4.1"))]
     {
-        let r = HARRIS_BLOCK as isize / 2 + 1;
-        let at = img.idx(x - r, y - r);
-        let last = img.idx(x - r, y + r) + L + 2;
+        let at = img.idx(x - REACH, y - REACH);
+        let last = img.idx(x - REACH, y + REACH) + ROW_BYTES;
         assert!(
             last <= img.data.len(),
             "Harris window outside the padded image"
         );
-        // SAFETY: SSE4.1 is enabled at compile time, and the 9 rows' reads of bytes
-        // at .. at + 10 stay inside the buffer (checked just above).
+        // SAFETY: SSE4.1 is enabled at compile time, and the ROWS rows' reads of ROW_BYTES
+        // bytes each stay inside the buffer (the last row's end is checked just above).
         return unsafe { harris_sse41(img.data.as_ptr().add(at), img.stride) };
     }
     #[allow(unreachable_code)]
@@ -36,7 +40,7 @@ pub fn harris_response(img: &PaddedImage, x: isize, y: isize) -> f32 {
 /// [`harris_response`] on 8 i16 lanes per row with `pmaddwd` sums: the same integer sums.
 ///
 /// # Safety
-/// SSE4.1; 9 rows of 10 bytes readable from `p` with row pitch `stride`.
+/// SSE4.1; ROWS rows of ROW_BYTES bytes readable from `p` with row pitch `stride`.
 #[cfg(all(target_arch = "x86_64", target_feature = "sse4.1"))]
 #[inline]
 unsafe fn harris_sse41(p: *const u8, stride: usize) -> f32 {
@@ -84,12 +88,11 @@ unsafe fn harris_sse41(p: *const u8, stride: usize) -> f32 {
 #[inline]
 fn harris_lanes(img: &PaddedImage, x: isize, y: isize) -> f32 {
     // Rows y-4 ..= y+4, columns x-4 ..= x+4 (read 10 wide so each row is one 8+2 slice).
-    let r = HARRIS_BLOCK as isize / 2 + 1;
-    let mut hdiff = [[0i16; L]; 9];
-    let mut vsum = [[0i16; L]; 9];
+    let mut hdiff = [[0i16; L]; ROWS];
+    let mut vsum = [[0i16; L]; ROWS];
     for (j, (hd, vs)) in hdiff.iter_mut().zip(vsum.iter_mut()).enumerate() {
-        let at = img.idx(x - r, y - r + j as isize);
-        let p = &img.data[at..at + L + 2];
+        let at = img.idx(x - REACH, y - REACH + j as isize);
+        let p = &img.data[at..at + ROW_BYTES];
         for i in 0..L {
             let (a, b, c) = (p[i] as i16, p[i + 1] as i16, p[i + 2] as i16);
             hd[i] = c - a;
