@@ -71,7 +71,7 @@ impl System {
         let tf = bf.frame.get_or_insert_with(|| {
             TrackedFrame::new(self.frame.features.keypoints.capacity(), w, h)
         });
-        let end = (next + max_frames).min(pending.len());
+        let end = next.saturating_add(max_frames).min(pending.len());
         for pf in &pending[next..end] {
             let a = ((pf.timestamp - ts0) / (ts1 - ts0)).clamp(0.0, 1.0);
             let rot = p0.rotation.slerp(&p1.rotation, a);
