@@ -64,6 +64,26 @@ pub struct PacedSource {
     stop: Arc<AtomicBool>,
     handle: Option<JoinHandle<()>>,
     ended: bool,
+    /// Polled while waiting for a frame: true ends the stream (Ctrl-C while a replay waits
+    /// for a far-off timestamp, or a camera that stopped delivering).
+    interrupt: Option<fn() -> bool>,
+}
+
+/// Longest single sleep or wait, so a stop request or an interrupt is seen within it.
+const POLL: Duration = Duration::from_millis(50);
+
+/// Sleeps until `at` in slices of [`POLL`]; false when `stop` was raised meanwhile.
+fn sleep_until(at: Instant, stop: &AtomicBool) -> bool {
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            return false;
+        }
+        let now = Instant::now();
+        if at <= now {
+            return true;
+        }
+        std::thread::sleep((at - now).min(POLL));
+    }
 }
 
 /// Queue capacity between source and consumer: small, so the consumer always gets a fresh frame.
@@ -98,7 +118,14 @@ impl PacedSource {
             stop,
             handle: Some(handle),
             ended: false,
+            interrupt: None,
         })
+    }
+
+    /// Ends the stream (`next_frame` returns `End`) as soon as `interrupted` returns true,
+    /// even while waiting for a frame that is not due yet.
+    pub fn set_interrupt(&mut self, interrupted: fn() -> bool) {
+        self.interrupt = Some(interrupted);
     }
 
     pub fn stats(&self) -> Arc<PacingStats> {
@@ -154,9 +181,8 @@ fn produce<S: FrameSource>(
         // the next frame just before then, not right after releasing this one, when the
         // consumer is busiest with it (decoding a 640x480 JPEG takes a core for ~4 ms).
         if let Some(at) = read_at.take() {
-            let now = Instant::now();
-            if at > now {
-                std::thread::sleep(at - now);
+            if !sleep_until(at, stop) {
+                return;
             }
         }
         let t_read = Instant::now();
@@ -169,9 +195,8 @@ fn produce<S: FrameSource>(
                         + Duration::from_secs_f64(
                             ((buf.timestamp - t0) / speed.max(1e-6)).max(0.0),
                         );
-                    let now = Instant::now();
-                    if due > now {
-                        std::thread::sleep(due - now);
+                    if !sleep_until(due, stop) {
+                        return;
                     }
                     // The next frame is expected one interval later; its read starts twice
                     // a read's time (plus 2 ms for jitter) before that.
@@ -287,7 +312,19 @@ impl FrameSource for PacedSource {
         if self.ended {
             return Ok(FrameStatus::End);
         }
-        match self.rx.recv() {
+        let received = loop {
+            match self.rx.recv_timeout(POLL) {
+                Ok(m) => break Ok(m),
+                Err(RecvTimeoutError::Disconnected) => break Err(()),
+                Err(RecvTimeoutError::Timeout) => {
+                    if self.interrupt.is_some_and(|f| f()) {
+                        self.ended = true;
+                        return Ok(FrameStatus::End);
+                    }
+                }
+            }
+        };
+        match received {
             Ok(Msg::Frame(mut f)) => {
                 std::mem::swap(out, &mut f);
                 if f.len() == out.len() {
@@ -513,12 +550,63 @@ mod tests {
         }
     }
 
+    /// Runs `f` on a thread and fails the test when it has not returned within `limit`.
+    fn within(limit: Duration, f: impl FnOnce() + Send + 'static) {
+        let (tx, rx) = crossbeam_channel::bounded(1);
+        std::thread::spawn(move || {
+            f();
+            let _ = tx.send(());
+        });
+        assert!(
+            rx.recv_timeout(limit).is_ok(),
+            "did not return within {limit:?}"
+        );
+    }
+
     #[test]
     fn dropping_mid_stream_joins_the_thread() {
-        let c = Counter::new(1_000_000, 1000.0);
-        let mut p = PacedSource::spawn(c, Pacing::AsFastAsPossible).unwrap();
-        let mut f = Frame::new(4, 2);
-        p.next_frame(&mut f).unwrap();
-        drop(p); // must not hang
+        within(Duration::from_secs(10), || {
+            let c = Counter::new(1_000_000, 1000.0);
+            let mut p = PacedSource::spawn(c, Pacing::AsFastAsPossible).unwrap();
+            let mut f = Frame::new(4, 2);
+            p.next_frame(&mut f).unwrap();
+            drop(p);
+        });
+    }
+
+    /// Frame 0 at t = 0, then frames a day later (a gap, or nanosecond timestamps read as s).
+    struct FarOff(Counter);
+    impl FrameSource for FarOff {
+        fn info(&self) -> &SourceInfo {
+            &self.0.info
+        }
+        fn next_frame(&mut self, out: &mut Frame) -> Result<FrameStatus, SourceError> {
+            let r = self.0.next_frame(out)?;
+            if out.index > 0 {
+                out.timestamp += 86_400.0;
+            }
+            Ok(r)
+        }
+    }
+
+    static STOP_ASKED: AtomicBool = AtomicBool::new(false);
+
+    #[test]
+    fn an_interrupt_ends_a_wait_for_a_far_off_frame_and_drop_joins() {
+        within(Duration::from_secs(5), || {
+            let c = FarOff(Counter::new(10, 30.0));
+            let mut p = PacedSource::spawn(c, Pacing::RealTime { speed: 1.0 }).unwrap();
+            p.set_interrupt(|| STOP_ASKED.load(Ordering::SeqCst));
+            let mut f = Frame::new(4, 2);
+            assert_eq!(p.next_frame(&mut f).unwrap(), FrameStatus::Ready);
+            std::thread::spawn(|| {
+                std::thread::sleep(Duration::from_millis(200));
+                STOP_ASKED.store(true, Ordering::SeqCst);
+            });
+            let t = Instant::now();
+            assert_eq!(p.next_frame(&mut f).unwrap(), FrameStatus::End);
+            assert!(t.elapsed() >= Duration::from_millis(150));
+            drop(p); // the producer sleeps towards a day away: it must see the stop.
+        });
     }
 }

@@ -74,9 +74,11 @@ pub fn bench(cmd: BenchCommand) -> Result<()> {
         counts[i] += 1;
     }
     let n = outcome.latencies_ms.len().max(1);
-    println!(
+    out!(
         "tracking latency (frame arrival -> pose), {} frames, deadline {:.1} ms, cores {:?}",
-        r.frames, deadline, a.cores
+        r.frames,
+        deadline,
+        a.cores
     );
     let mut lo = 0.0;
     for (e, c) in edges.iter().zip(&counts) {
@@ -86,17 +88,22 @@ pub fn bench(cmd: BenchCommand) -> Result<()> {
             format!("    > {lo:5.1} ms")
         };
         let bar = "#".repeat((60 * c).div_ceil(n));
-        println!("{label} {c:6} {bar}");
+        out!("{label} {c:6} {bar}");
         lo = *e;
     }
     let t = &r.timing_ms.tracking;
-    println!(
+    out!(
         "p50 {:.1} ms, p90 {:.1} ms, p99 {:.1} ms, max {:.1} ms",
-        t.p50, t.p90, t.p99, t.max
+        t.p50,
+        t.p90,
+        t.p99,
+        t.max
     );
-    println!(
+    out!(
         "deadline misses {}, dropped frames {}, peak RSS {:.0} MB",
-        r.deadline_misses, r.dropped_frames, r.peak_rss_mb
+        r.deadline_misses,
+        r.dropped_frames,
+        r.peak_rss_mb
     );
     Ok(())
 }

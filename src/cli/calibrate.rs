@@ -94,7 +94,7 @@ pub fn calibrate(a: CalibrateArgs) -> Result<()> {
         from_folder(Path::new(&a.input), &board, &detector)?
     };
     let found: Vec<Vec<Vector2<f64>>> = views.iter().flatten().cloned().collect();
-    eprintln!(
+    note!(
         "sdslam: board {}x{} found in {} of {} images",
         a.board.cols,
         a.board.rows,
@@ -113,12 +113,12 @@ pub fn calibrate(a: CalibrateArgs) -> Result<()> {
     let mut k = 0;
     for (name, v) in names.iter().zip(&views) {
         match v {
-            None => eprintln!("  {name}: board not found"),
+            None => note!("  {name}: board not found"),
             Some(_) => {
                 match r.view_rms_px[k] {
-                    Some(rms) => eprintln!("  {name}: RMS {rms:.3} px"),
+                    Some(rms) => note!("  {name}: RMS {rms:.3} px"),
                     None => {
-                        eprintln!("  {name}: dropped (reprojection error far above the others)")
+                        note!("  {name}: dropped (reprojection error far above the others)")
                     }
                 }
                 k += 1;
@@ -147,7 +147,7 @@ pub fn calibrate(a: CalibrateArgs) -> Result<()> {
     );
     let yaml = r.calibration(fps).to_orbslam_yaml(&summary);
     write_atomic(&a.out, yaml.as_bytes())?;
-    println!(
+    out!(
         "fx {:.3} fy {:.3} cx {:.3} cy {:.3} k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6} k3 {:.5}\nreprojection RMS {:.3} px over {} views; written to {}",
         c.fx, c.fy, c.cx, c.cy, c.k1, c.k2, c.p1, c.p2, c.k3, r.rms_px, r.poses.len(), a.out.display()
     );
@@ -216,12 +216,12 @@ fn from_camera(a: &CalibrateArgs, board: &Board, detector: &DetectorConfig) -> R
     opts.gain = a.camera.gain;
     let cam = device::open_live(&a.input, &opts).map_err(sdslam::camera::SourceError::from)?;
     for w in &cam.warnings {
-        eprintln!("warning: {w}");
+        note!("warning: {w}");
     }
     let mut src = cam.source;
     let info = src.info().clone();
     super::signal::install();
-    eprintln!(
+    note!(
         "sdslam: {}: show the board at different tilts and positions; collecting {} views (Ctrl-C to finish early)",
         info.name, a.views
     );
@@ -257,7 +257,7 @@ fn from_camera(a: &CalibrateArgs, board: &Board, detector: &DetectorConfig) -> R
             l.iter().zip(&c).map(|(p, q)| (p - q).norm()).sum::<f64>() / c.len() as f64 > 0.1 * diag
         });
         if moved {
-            eprintln!("  view {} of {}", views.len() + 1, a.views);
+            note!("  view {} of {}", views.len() + 1, a.views);
             names.push(format!("frame {:.3}", frame.timestamp));
             last = Some(c.clone());
             views.push(Some(c));

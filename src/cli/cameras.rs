@@ -6,7 +6,7 @@ use sdslam::Result;
 pub fn cameras() -> Result<()> {
     let cams = list_cameras();
     if cams.is_empty() {
-        println!(
+        out!(
             "no cameras found (no V4L2 capture devices{})",
             if cfg!(feature = "libcamera") {
                 " and no libcamera cameras"
@@ -17,12 +17,12 @@ pub fn cameras() -> Result<()> {
         return Ok(());
     }
     for c in &cams {
-        println!("{}  {}", c.spec, c.name);
+        out!("{}  {}", c.spec, c.name);
         match &c.error {
-            Some(e) => println!("    cannot query: {e}"),
+            Some(e) => out!("    cannot query: {e}"),
             None => {
                 for part in describe_modes(&c.modes).split("; ") {
-                    println!("    {part}");
+                    out!("    {part}");
                 }
             }
         }

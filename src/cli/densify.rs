@@ -84,7 +84,7 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
         match opened.source.next_frame(&mut frame)? {
             FrameStatus::Ready => {}
             FrameStatus::Skipped { index, reason } => {
-                eprintln!("warning: skipping unreadable frame {index}: {reason}");
+                note!("warning: skipping unreadable frame {index}: {reason}");
                 continue;
             }
             FrameStatus::End => break,
@@ -172,7 +172,7 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
             )
         })
         .unwrap_or_default();
-    eprintln!(
+    note!(
         "sdslam densify: {} keyframes, {} reconstructed, {} points ({:.0} per keyframe){acc}; {:.1} s; outputs in {}",
         keyframes,
         report.semidense_keyframes,

@@ -101,12 +101,12 @@ pub fn eval(cmd: EvalCommand) -> Result<()> {
             if a.json {
                 print_json(&r)?;
             } else {
-                println!("matched    {} poses ({} unmatched)", r.matched, r.unmatched);
-                println!("ATE rmse   {:.6} m", r.rmse_m);
-                println!("    mean   {:.6} m", r.mean_m);
-                println!("    median {:.6} m", r.median_m);
-                println!("    max    {:.6} m", r.max_m);
-                println!("scale      {:.6}", r.scale);
+                out!("matched    {} poses ({} unmatched)", r.matched, r.unmatched);
+                out!("ATE rmse   {:.6} m", r.rmse_m);
+                out!("    mean   {:.6} m", r.mean_m);
+                out!("    median {:.6} m", r.median_m);
+                out!("    max    {:.6} m", r.max_m);
+                out!("scale      {:.6}", r.scale);
             }
             Ok(())
         }
@@ -132,16 +132,19 @@ pub fn eval(cmd: EvalCommand) -> Result<()> {
             if a.json {
                 print_json(&r)?;
             } else {
-                println!("pairs      {} ({} s apart)", r.pairs, r.delta_s);
-                println!(
+                out!("pairs      {} ({} s apart)", r.pairs, r.delta_s);
+                out!(
                     "RPE trans  rmse {:.6} m, mean {:.6} m, max {:.6} m",
-                    r.trans_rmse, r.trans_mean, r.trans_max
+                    r.trans_rmse,
+                    r.trans_mean,
+                    r.trans_max
                 );
-                println!(
+                out!(
                     "RPE rot    rmse {:.4} deg, mean {:.4} deg",
-                    r.rot_rmse_deg, r.rot_mean_deg
+                    r.rot_rmse_deg,
+                    r.rot_mean_deg
                 );
-                println!("scale      {:.6}", r.scale);
+                out!("scale      {:.6}", r.scale);
             }
             Ok(())
         }
@@ -196,10 +199,10 @@ fn cloud(a: CloudArgs) -> Result<()> {
             let t = points[start].timestamp;
             let end = start + points[start..].partition_point(|p| p.timestamp == t);
             let k = cloud_accuracy(&points[start..end], &align.alignment, cam, &frames);
-            println!(
-                "keyframe {t:.6}: {:6} points, median {:.3}%, within 2% {:.1}%, beyond 10% {:.2}%",
+            out!(
+                "keyframe {t:.6}: {:6} points, median {}, within 2% {:.1}%, beyond 10% {:.2}%",
                 k.points,
-                k.median_relative_error * 100.0,
+                super::percent(k.median_relative_error),
                 k.within_2pct * 100.0,
                 k.outliers_10pct * 100.0
             );
@@ -209,16 +212,19 @@ fn cloud(a: CloudArgs) -> Result<()> {
     if a.json {
         print_json(&r)?;
     } else {
-        println!(
+        out!(
             "points     {} ({} evaluated, {} keyframes, {:.0} per keyframe)",
-            r.points, r.evaluated, r.keyframes, r.points_per_keyframe
+            r.points,
+            r.evaluated,
+            r.keyframes,
+            r.points_per_keyframe
         );
-        println!(
-            "median relative depth error {:.3}%",
-            r.median_relative_error * 100.0
+        out!(
+            "median relative depth error {}",
+            super::percent(r.median_relative_error)
         );
-        println!("within 2%  {:.2}%", r.within_2pct * 100.0);
-        println!("beyond 10% {:.3}% (outliers)", r.outliers_10pct * 100.0);
+        out!("within 2%  {:.2}%", r.within_2pct * 100.0);
+        out!("beyond 10% {:.3}% (outliers)", r.outliers_10pct * 100.0);
     }
     Ok(())
 }
@@ -226,6 +232,6 @@ fn cloud(a: CloudArgs) -> Result<()> {
 /// Prints `value` as one line of JSON (the `--json` output of the evaluation commands).
 fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
     let line = serde_json::to_string(value).map_err(|e| Error::Invalid(e.to_string()))?;
-    println!("{line}");
+    out!("{line}");
     Ok(())
 }

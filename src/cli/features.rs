@@ -100,19 +100,19 @@ pub fn features(a: FeaturesArgs) -> Result<()> {
         let q = quality
             .map(|(r, m)| format!(", \"repeatability\": {r:.4}, \"matching_score\": {m:.4}"))
             .unwrap_or_default();
-        println!(
+        out!(
             "{{\"median_ms\": {mt:.4}, \"features\": {mc}, \"images\": {}, \"repeat\": {}{q}}}",
             a.images.len(),
             a.repeat
         );
     } else {
-        println!(
+        out!(
             "{} images x {} runs: median {mt:.3} ms per extraction, median {mc} features",
             a.images.len(),
             a.repeat
         );
         if let Some((r, m)) = quality {
-            println!("under the homography: repeatability {r:.3}, matching score {m:.3} (mean over images, 2.5 px)");
+            out!("under the homography: repeatability {r:.3}, matching score {m:.3} (mean over images, 2.5 px)");
         }
     }
     Ok(())

@@ -116,6 +116,6 @@ pub fn write_report(run: &Path) -> Result<()> {
     h.push_str("</body></html>\n");
     let out = run.join("report.html");
     write_atomic(&out, h.as_bytes())?;
-    println!("{}", out.display());
+    out!("{}", out.display());
     Ok(())
 }

@@ -1,5 +1,24 @@
 //! Subcommands of `sdslam`.
 
+/// A line to stderr that never panics: a closed or full stderr (`2>/dev/full`, `| head -1`)
+/// must not cost a run its outputs.
+macro_rules! note {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($t)*);
+    }};
+}
+
+/// A line of a command's result to stdout; a failed write (full disk, closed pipe) is that
+/// command's error, not a panic.
+macro_rules! out {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout(), $($t)*)
+            .map_err(|e| sdslam::Error::io("<standard output>", e))?;
+    }};
+}
+
 mod bench;
 mod calibrate;
 mod cameras;
@@ -106,6 +125,15 @@ pub fn dispatch(cli: Cli) -> Result<()> {
         Some(Command::Synth(a)) => synth::synth(a),
         Some(Command::Features(a)) => features::features(a),
         Some(Command::Vocab(v)) => vocab::vocab(v),
+    }
+}
+
+/// `x` as a percentage, or "n/a" when there was nothing to measure (a NaN median).
+fn percent(x: f64) -> String {
+    if x.is_finite() {
+        format!("{:.2}%", x * 100.0)
+    } else {
+        "n/a (no point could be evaluated)".into()
     }
 }
 

@@ -77,7 +77,7 @@ pub fn record(a: RecordArgs) -> Result<()> {
     );
     list.write_all(header.as_bytes())
         .map_err(|e| Error::io(&list_path, e))?;
-    eprintln!(
+    note!(
         "sdslam: recording {} ({}x{} @ {} fps) to {}; Ctrl-C stops",
         info.name,
         info.width,
@@ -125,7 +125,7 @@ pub fn record(a: RecordArgs) -> Result<()> {
     }
     drop(src);
     list.sync_all().map_err(|e| Error::io(&list_path, e))?;
-    eprintln!(
+    note!(
         "sdslam: recorded {saved} frames in {:.1} s ({skipped} corrupt skipped, {} dropped because writing was behind){}; replay with `sdslam run {}`",
         started.elapsed().as_secs_f64(),
         stats.dropped(),

@@ -14,6 +14,9 @@ use sdslam::{Config, Result};
 
 use super::source;
 
+mod outputs;
+use outputs::Outputs;
+
 #[derive(Args, Debug)]
 pub struct RunArgs {
     /// `synthetic` (default), a TUM RGB-D folder, a EuRoC folder (`mav0`), an image folder with
@@ -115,7 +118,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     if a.no_semidense {
         config.semidense.enabled = false;
     }
-    io::prepare_output_dir(&a.out)?;
+    let mut outputs = Outputs::prepare(&a.out, a.source.as_deref(), a.save_map.as_deref())?;
     let mut opened = source::open(a.source.as_deref(), a.calib.as_deref(), a.frames, &a.camera)?;
     super::signal::install();
     let calib = opened.calibration.clone();
@@ -124,10 +127,10 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     // Ground truth beside the outputs, so `sdslam eval ate OUT/groundtruth.txt OUT/keyframes.txt`
     // works for every source that has it.
     if let Some(gt) = &opened.groundtruth {
-        write_tum_trajectory(&a.out.join("groundtruth.txt"), gt)?;
+        outputs.write("groundtruth.txt", |p| write_tum_trajectory(p, gt));
     }
     let info = opened.source.info().clone();
-    eprintln!(
+    note!(
         "sdslam: {} ({}x{} @ {:.1} fps{}), calibration {}",
         info.name,
         info.width,
@@ -164,7 +167,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         let n = system
             .load_map(&snap)
             .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", path.display())))?;
-        eprintln!(
+        note!(
             "sdslam: loaded map {} ({n} keyframes, {} points)",
             path.display(),
             snap.n_points()
@@ -174,7 +177,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     // The caller's thread tracks; the mapping threads were pinned (if configured) as they
     // started.
     if !sdslam::runtime::pin_current_thread(&config.runtime.tracking_cpus) {
-        eprintln!(
+        note!(
             "warning: could not pin tracking to CPUs {:?}",
             config.runtime.tracking_cpus
         );
@@ -186,7 +189,8 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     let mut pacing_stats = None;
     let mut src: Box<dyn FrameSource> = match pacing {
         Some(p) => {
-            let paced = PacedSource::spawn(opened.source, p)?;
+            let mut paced = PacedSource::spawn(opened.source, p)?;
+            paced.set_interrupt(super::signal::interrupted);
             pacing_stats = Some(paced.stats());
             Box::new(paced)
         }
@@ -232,9 +236,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             report.stopped_early = Some(format!(
                 "the {t} thread failed (panicked); outputs written from the run so far"
             ));
-            eprintln!(
-                "error: the {t} thread failed; stopping and writing the outputs computed so far"
-            );
+            note!("error: the {t} thread failed; stopping and writing the outputs computed so far");
             break;
         }
         // `--frames N` also bounds live cameras (replays are cut at the source).
@@ -244,7 +246,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         if super::signal::interrupted() {
             report.stopped_early =
                 Some("interrupted (Ctrl-C); outputs written from the run so far".into());
-            eprintln!(
+            note!(
                 "sdslam: interrupted; stopping the threads and writing the outputs computed so far"
             );
             break;
@@ -254,7 +256,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             Ok(FrameStatus::Skipped { index, reason }) => {
                 report.skipped_frames += 1;
                 if !warned_skip {
-                    eprintln!("warning: skipping unreadable frame {index}: {reason} (further skips are counted in report.json)");
+                    note!("warning: skipping unreadable frame {index}: {reason} (further skips are counted in report.json)");
                     warned_skip = true;
                 }
                 continue;
@@ -262,7 +264,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             Ok(FrameStatus::End) => break,
             Err(e) => {
                 report.stopped_early = Some(e.to_string());
-                eprintln!("error: {e}; writing the outputs computed so far");
+                note!("error: {e}; writing the outputs computed so far");
                 break;
             }
         }
@@ -343,14 +345,168 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     }
 
     report.wall_time_s = started.elapsed().as_secs_f64();
+    let interrupted = super::signal::interrupted();
+    if interrupted {
+        report.stopped_early.get_or_insert_with(|| {
+            "interrupted (Ctrl-C); outputs written from the run so far".into()
+        });
+    }
     let finishing = Instant::now();
-    let threads_ok = system.finish();
+    // Tracking outputs first (trajectory, keyframes, a first report.json): they are final
+    // once the mapping threads are joined, and must not wait for the semi-dense backlog.
+    let mut threads_ok = system.finish_tracking();
+    fill_tracking_report(&mut report, &system, &frame_timer);
+    let trajectory = system.trajectory();
+    let keyframes = system.keyframe_trajectory();
+    let alignment = groundtruth
+        .as_ref()
+        .and_then(|gt| sdslam::eval::ate(gt, &keyframes, 0.02, true));
+    report.keyframe_ate_rmse_m = alignment.as_ref().map(|r| r.rmse_m);
+    outputs.write("trajectory.txt", |p| write_tum_trajectory(p, &trajectory));
+    outputs.write("keyframes.txt", |p| write_tum_trajectory(p, &keyframes));
+    if let Some(path) = &a.save_map {
+        outputs.write_at("map", path, |p| {
+            let bytes = system
+                .save_map()
+                .encode()
+                .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", p.display())))?;
+            io::write_atomic(p, &bytes)?;
+            note!(
+                "sdslam: map saved to {} ({} kB)",
+                p.display(),
+                bytes.len() / 1024
+            );
+            Ok(())
+        });
+    }
+    report.peak_rss_mb = io::peak_rss_mb();
+    outputs.write("report.json", |p| write_json_atomic(p, &report));
+    if interrupted && config.semidense.enabled {
+        note!("sdslam: tracking outputs written; cutting the semi-dense backlog");
+    }
+
+    threads_ok &= system.finish_semidense(interrupted);
     system.release_working_memory();
     if !threads_ok {
         report.stopped_early.get_or_insert_with(|| {
             "a worker thread panicked; outputs written from the map as it was".into()
         });
     }
+    let cloud = system.semidense_cloud();
+    #[cfg(feature = "rerun")]
+    if let Some(v) = &viewer {
+        let t = keyframes.last().map_or(0.0, |k| k.timestamp);
+        v.keyframes(t, &keyframes);
+        v.cloud(t, &cloud);
+    }
+    outputs.write("semidense.ply", |p| write_ply(p, &cloud));
+    report.semidense_points = cloud.len();
+    if let Some(sd) = system.semidense() {
+        report.semidense_keyframes = sd.stats.keyframes_reconstructed;
+        report.semidense_skipped_keyframes = sd.stats.keyframes_skipped;
+        report.semidense_skipped_culled = sd.stats.skipped_culled;
+        report.semidense_skipped_no_neighbours = sd.stats.skipped_no_neighbours;
+        report.semidense_skipped_overload = sd.stats.skipped_overload;
+        report.semidense_skipped_cut = sd.stats.skipped_cut;
+        report.semidense_busy_s = sd.stats.busy_s;
+        report.semidense_finish_s = finishing.elapsed().as_secs_f64();
+        report.timing_ms.semidense_keyframe = sd.t_keyframe.percentiles();
+        report.timing_ms.semidense_depth = sd.t_depth.percentiles();
+        report.timing_ms.semidense_intra = sd.t_intra.percentiles();
+        report.timing_ms.semidense_inter = sd.t_inter.percentiles();
+        if sd.stats.skipped_cut > 0 {
+            note!(
+                "sdslam: interrupted: {} keyframes of the semi-dense backlog were cut (not reconstructed, or not verified by the inter-keyframe check; semidense_skipped_cut in report.json)",
+                sd.stats.skipped_cut
+            );
+        }
+        if a.depth_maps {
+            outputs.write("depth", |p| {
+                let _ = p;
+                super::densify::write_depth_maps(&a.out, sd, info.width, info.height)
+            });
+        }
+        if let (Some(gt), Some(ate), false) = (&groundtruth, &alignment, cloud.is_empty()) {
+            let stamps: Vec<f64> = sd.entries().iter().map(|e| e.timestamp).collect();
+            match depth_truth.load(&stamps, gt, info.width, info.height) {
+                Ok(frames) if !frames.is_empty() => {
+                    report.semidense_accuracy = Some(sdslam::eval::cloud_accuracy(
+                        &cloud,
+                        &ate.alignment,
+                        &calib.camera,
+                        &frames,
+                    ));
+                }
+                Ok(_) => {}
+                Err(e) => note!("warning: semi-dense accuracy not evaluated: {e}"),
+            }
+        }
+    }
+    if !a.no_plots {
+        let aligned = groundtruth.as_ref().zip(alignment.as_ref());
+        outputs.write("trajectory.png", |p| {
+            super::plots::trajectory(
+                p,
+                &keyframes,
+                aligned.map(|(gt, r)| (gt.as_slice(), &r.alignment, r.rmse_m)),
+            )
+        });
+        outputs.write("cloud.png", |p| super::plots::cloud(p, &cloud));
+        outputs.write("timing.png", |p| {
+            super::plots::timing(p, frame_timer.samples_ms(), deadline_ms)
+        });
+    }
+    // Last, so the peak covers the whole run (finishing, the cloud, evaluation, plots).
+    report.peak_rss_mb = io::peak_rss_mb();
+    outputs.write("report.json", |p| write_json_atomic(p, &report));
+    if let Some(acc) = &report.semidense_accuracy {
+        note!(
+            "sdslam: semi-dense {} points ({:.0} per keyframe): median relative depth error {}, {:.1}% within 2%, {:.2}% off by > 10%",
+            acc.points,
+            acc.points_per_keyframe,
+            super::percent(acc.median_relative_error),
+            acc.within_2pct * 100.0,
+            acc.outliers_10pct * 100.0
+        );
+    }
+    note!(
+        "sdslam: {} frames ({} skipped), {} tracked, {} keyframes, {} points{}, {:.1} s; state {:?}; outputs in {}",
+        report.frames,
+        report.skipped_frames,
+        report.tracked_frames,
+        report.keyframes,
+        report.map_points,
+        report.keyframe_ate_rmse_m.map(|a| format!(", keyframe ATE {:.4} (Sim3-aligned)", a)).unwrap_or_default(),
+        report.wall_time_s,
+        system.state(),
+        outputs.dir().display()
+    );
+    if !outputs.failures().is_empty() {
+        return Err(sdslam::Error::Invalid(format!(
+            "{} output(s) not written ({}); the others are in {}",
+            outputs.failures().len(),
+            outputs.failures().join("; "),
+            outputs.dir().display()
+        )));
+    }
+    if !threads_ok {
+        return Err(sdslam::Error::Invalid(format!(
+            "{}; every output was written to {}",
+            report
+                .stopped_early
+                .as_deref()
+                .unwrap_or("a worker thread failed"),
+            outputs.dir().display()
+        )));
+    }
+    Ok(RunOutcome {
+        report,
+        latencies_ms: frame_timer.samples_ms().to_vec(),
+    })
+}
+
+/// The tracking and mapping figures of a finished run.
+fn fill_tracking_report(report: &mut Report, system: &System, frame_timer: &StageTimer) {
     report.timing_ms.tracking = frame_timer.percentiles();
     report.timing_ms.orb_extraction = system.stats.orb_extraction.percentiles();
     report.timing_ms.local_ba = system.stats.local_mapping.percentiles();
@@ -369,132 +525,6 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     report.final_ba_ms = system.stats.final_ba_ms;
     report.timing_ms.loop_closing = system.stats.loop_closing.percentiles();
     (report.keyframes, report.map_points) = system.map_size();
-    let trajectory = system.trajectory();
-    let keyframes = system.keyframe_trajectory();
-    write_tum_trajectory(&a.out.join("trajectory.txt"), &trajectory)?;
-    write_tum_trajectory(&a.out.join("keyframes.txt"), &keyframes)?;
-    if let Some(gt) = &groundtruth {
-        if let Some(ate) = sdslam::eval::ate(gt, &keyframes, 0.02, true) {
-            report.keyframe_ate_rmse_m = Some(ate.rmse_m);
-        }
-    }
-    if let Some(path) = &a.save_map {
-        let bytes = system
-            .save_map()
-            .encode()
-            .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", path.display())))?;
-        io::write_atomic(path, &bytes)?;
-        eprintln!(
-            "sdslam: map saved to {} ({} kB)",
-            path.display(),
-            bytes.len() / 1024
-        );
-    }
-    let cloud = system.semidense_cloud();
-    #[cfg(feature = "rerun")]
-    if let Some(v) = &viewer {
-        let t = keyframes.last().map_or(0.0, |k| k.timestamp);
-        v.keyframes(t, &keyframes);
-        v.cloud(t, &cloud);
-    }
-    write_ply(&a.out.join("semidense.ply"), &cloud)?;
-    report.semidense_points = cloud.len();
-    // The high-water mark of the run, finishing and writing the cloud included; ground-truth
-    // evaluation below (depth maps loaded) is not part of the product and comes after.
-    report.peak_rss_mb = io::peak_rss_mb();
-    if let Some(sd) = system.semidense() {
-        report.semidense_keyframes = sd.stats.keyframes_reconstructed;
-        report.semidense_skipped_keyframes = sd.stats.keyframes_skipped;
-        report.semidense_skipped_culled = sd.stats.skipped_culled;
-        report.semidense_skipped_no_neighbours = sd.stats.skipped_no_neighbours;
-        report.semidense_skipped_overload = sd.stats.skipped_overload;
-        report.semidense_busy_s = sd.stats.busy_s;
-        report.semidense_finish_s = finishing.elapsed().as_secs_f64();
-        report.timing_ms.semidense_keyframe = sd.t_keyframe.percentiles();
-        report.timing_ms.semidense_depth = sd.t_depth.percentiles();
-        report.timing_ms.semidense_intra = sd.t_intra.percentiles();
-        report.timing_ms.semidense_inter = sd.t_inter.percentiles();
-        if a.depth_maps {
-            super::densify::write_depth_maps(&a.out, sd, info.width, info.height)?;
-        }
-        if let (Some(gt), false) = (&groundtruth, cloud.is_empty()) {
-            if let Some(ate) = sdslam::eval::ate(gt, &keyframes, 0.02, true) {
-                let stamps: Vec<f64> = sd.entries().iter().map(|e| e.timestamp).collect();
-                match depth_truth.load(&stamps, gt, info.width, info.height) {
-                    Ok(frames) if !frames.is_empty() => {
-                        report.semidense_accuracy = Some(sdslam::eval::cloud_accuracy(
-                            &cloud,
-                            &ate.alignment,
-                            &calib.camera,
-                            &frames,
-                        ));
-                    }
-                    Ok(_) => {}
-                    Err(e) => eprintln!("warning: semi-dense accuracy not evaluated: {e}"),
-                }
-            }
-        }
-    }
-    write_json_atomic(&a.out.join("report.json"), &report)?;
-    if !a.no_plots {
-        let aligned = groundtruth
-            .as_ref()
-            .and_then(|gt| sdslam::eval::ate(gt, &keyframes, 0.02, true).map(|r| (gt, r)));
-        let drawn = [
-            super::plots::trajectory(
-                &a.out.join("trajectory.png"),
-                &keyframes,
-                aligned
-                    .as_ref()
-                    .map(|(gt, r)| (gt.as_slice(), &r.alignment, r.rmse_m)),
-            ),
-            super::plots::cloud(&a.out.join("cloud.png"), &cloud),
-            super::plots::timing(
-                &a.out.join("timing.png"),
-                frame_timer.samples_ms(),
-                deadline_ms,
-            ),
-        ];
-        for e in drawn.into_iter().filter_map(|r| r.err()) {
-            eprintln!("warning: {e}");
-        }
-    }
-    if let Some(acc) = &report.semidense_accuracy {
-        eprintln!(
-            "sdslam: semi-dense {} points ({:.0} per keyframe): median relative depth error {:.2}%, {:.1}% within 2%, {:.2}% off by > 10%",
-            acc.points,
-            acc.points_per_keyframe,
-            acc.median_relative_error * 100.0,
-            acc.within_2pct * 100.0,
-            acc.outliers_10pct * 100.0
-        );
-    }
-    eprintln!(
-        "sdslam: {} frames ({} skipped), {} tracked, {} keyframes, {} points{}, {:.1} s; state {:?}; outputs in {}",
-        report.frames,
-        report.skipped_frames,
-        report.tracked_frames,
-        report.keyframes,
-        report.map_points,
-        report.keyframe_ate_rmse_m.map(|a| format!(", keyframe ATE {:.4} (Sim3-aligned)", a)).unwrap_or_default(),
-        report.wall_time_s,
-        system.state(),
-        a.out.display()
-    );
-    if !threads_ok {
-        return Err(sdslam::Error::Invalid(format!(
-            "{}; every output was written to {}",
-            report
-                .stopped_early
-                .as_deref()
-                .unwrap_or("a worker thread failed"),
-            a.out.display()
-        )));
-    }
-    Ok(RunOutcome {
-        report,
-        latencies_ms: frame_timer.samples_ms().to_vec(),
-    })
 }
 
 /// Parses `START:COUNT`.

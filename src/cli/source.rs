@@ -86,7 +86,7 @@ fn parse_pixel_format(s: &str) -> std::result::Result<PixelFormat, String> {
 
 fn warn_all(warnings: &[String]) {
     for w in warnings {
-        eprintln!("warning: {w}");
+        note!("warning: {w}");
     }
 }
 

@@ -111,6 +111,6 @@ pub fn synth(a: SynthArgs) -> Result<()> {
         .calibration()
         .to_orbslam_yaml("sdslam built-in synthetic camera (no distortion)");
     write_atomic(&a.out.join("camera.yaml"), calib.as_bytes())?;
-    println!("wrote {} frames to {}", cfg.frames, a.out.display());
+    out!("wrote {} frames to {}", cfg.frames, a.out.display());
     Ok(())
 }

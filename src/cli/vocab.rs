@@ -112,7 +112,7 @@ pub fn vocab(cmd: VocabCommand) -> Result<()> {
         VocabCommand::Import { input, out } => {
             let v = load_vocabulary(&input)?;
             save_vocabulary(&out, &v)?;
-            println!(
+            out!(
                 "{} words (k {}, L {}) written to {}",
                 v.n_words(),
                 v.k,
@@ -140,7 +140,7 @@ pub fn vocab(cmd: VocabCommand) -> Result<()> {
             let v = train(&images, &cfg)
                 .ok_or_else(|| Error::Invalid("no descriptors in the training sources".into()))?;
             save_vocabulary(&a.out, &v)?;
-            println!(
+            out!(
                 "trained on {} images: {} words (k {}, L {}), written to {}",
                 images.len(),
                 v.n_words(),

@@ -82,6 +82,9 @@ pub struct Report {
     pub semidense_skipped_culled: usize,
     pub semidense_skipped_no_neighbours: usize,
     pub semidense_skipped_overload: usize,
+    /// ... or not reconstructed because the run was interrupted (Ctrl-C) and the semi-dense
+    /// backlog was cut so the run ends within about a second.
+    pub semidense_skipped_cut: usize,
     /// Semi-dense thread busy time over the run, and how long after the last frame it
     /// finished (the keyframes still within the delay, then the final checks).
     pub semidense_busy_s: f64,

@@ -2,6 +2,7 @@
 //! own thread fed by a bounded channel. The thread is the first to degrade under overload:
 //! when its queue is full, keyframes are not reconstructed (counted), tracking never waits.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
@@ -28,6 +29,9 @@ pub(crate) enum SemiDenseWorker {
         handle: Option<JoinHandle<Box<SemiDenseMapper>>>,
         /// Keyframes not sent because the queue was full.
         dropped: usize,
+        /// Raised by an interrupted `finish`: the thread drops its backlog instead of
+        /// reconstructing it.
+        cut: Arc<AtomicBool>,
     },
     /// After [`finish`](SemiDenseWorker::finish): the mapper with every result.
     Done(Box<SemiDenseMapper>),
@@ -44,6 +48,8 @@ impl SemiDenseWorker {
         cpus: Vec<usize>,
     ) -> Self {
         let (tx, rx) = bounded::<Message>(QUEUE_CAPACITY);
+        let cut = Arc::new(AtomicBool::new(false));
+        let cutting = Arc::clone(&cut);
         let handle = std::thread::Builder::new()
             .name("semidense".into())
             .spawn(move || {
@@ -55,6 +61,7 @@ impl SemiDenseWorker {
                 let mut n = 0;
                 while let Ok(m) = rx.recv() {
                     match m {
+                        Message::KeyFrame(_) if cutting.load(Ordering::Relaxed) => mapper.cut(1),
                         Message::KeyFrame(kf) => {
                             n += 1;
                             super::faults::maybe_panic("panic:semidense", n);
@@ -63,7 +70,11 @@ impl SemiDenseWorker {
                         Message::Reset => mapper.reset(),
                     }
                 }
-                mapper.flush(&map);
+                if cutting.load(Ordering::Relaxed) {
+                    mapper.flush_cut(&map);
+                } else {
+                    mapper.flush(&map);
+                }
                 mapper
             });
         match handle {
@@ -71,6 +82,7 @@ impl SemiDenseWorker {
                 tx: Some(tx),
                 handle: Some(h),
                 dropped: 0,
+                cut,
             },
             Err(_) => SemiDenseWorker::Failed,
         }
@@ -115,19 +127,27 @@ impl SemiDenseWorker {
         }
     }
 
-    /// Reconstructs what is pending, joins the thread. False when the thread had panicked.
-    pub fn finish(&mut self, map: &Mutex<Map>) -> bool {
+    /// Reconstructs what is pending (or, with `cut`, drops the backlog and only checks what
+    /// is reconstructed: an interrupted run ends within about one keyframe's time), joins the
+    /// thread. False when the thread had panicked.
+    pub fn finish(&mut self, map: &Mutex<Map>, cut: bool) -> bool {
         let state = std::mem::replace(self, SemiDenseWorker::Off);
         let (next, ok) = match state {
             SemiDenseWorker::Inline(mut m) => {
-                m.flush(map);
+                if cut {
+                    m.flush_cut(map);
+                } else {
+                    m.flush(map);
+                }
                 (SemiDenseWorker::Done(m), true)
             }
             SemiDenseWorker::Thread {
                 tx,
                 handle,
                 dropped,
+                cut: cutting,
             } => {
+                cutting.store(cut, Ordering::Relaxed);
                 drop(tx);
                 match handle.map(|h| h.join()) {
                     Some(Ok(mut m)) => {

@@ -255,12 +255,20 @@ impl System {
         lock(&self.map)
     }
 
-    /// Stops the mapping thread after it has processed every queued keyframe, and joins it.
-    /// Returns false when the thread had panicked (the map is still usable).
-    /// Then reconstructs the keyframes still pending for semi-dense mapping and joins that
-    /// thread. Returns false when a thread had panicked (what it had not finished is lost; the
-    /// map and everything else are still usable).
+    /// Ends the run: [`finish_tracking`](Self::finish_tracking), then
+    /// [`finish_semidense`](Self::finish_semidense) with the whole backlog reconstructed.
+    /// Returns false when a thread had panicked (what it had not finished is lost; the map
+    /// and everything else are still usable).
     pub fn finish(&mut self) -> bool {
+        let ok = self.finish_tracking();
+        self.finish_semidense(false) && ok
+    }
+
+    /// Stops the mapping thread after it has processed every queued keyframe and joins it,
+    /// tracks the frames still waiting for the initial backfill and runs the final full BA:
+    /// afterwards the trajectory, keyframes and map are final. False when the mapping thread
+    /// had panicked (the map is still usable).
+    pub fn finish_tracking(&mut self) -> bool {
         let mut ok = true;
         if let Some((joined, timer, loops)) = self.mapping.join() {
             ok = joined;
@@ -291,8 +299,17 @@ impl System {
             }
         }
         self.finished = true;
-        ok &= self.semidense.finish(&self.map);
         ok
+    }
+
+    /// After [`finish_tracking`](Self::finish_tracking): reconstructs the keyframes still
+    /// waiting for semi-dense mapping, or with `cut` (an interrupted run) drops them, counted
+    /// in the semi-dense stats, and joins that thread. False when it had panicked.
+    pub fn finish_semidense(&mut self, cut: bool) -> bool {
+        if !self.finished {
+            self.finish_tracking();
+        }
+        self.semidense.finish(&self.map, cut)
     }
 
     /// After [`finish`](Self::finish): frees what only running needed (the semi-dense
@@ -627,7 +644,11 @@ impl System {
 }
 
 impl Drop for System {
+    /// Joins every thread. Not while unwinding from a panic: a second panic there would abort
+    /// the process before the caller's outputs are written.
     fn drop(&mut self) {
-        self.finish();
+        if !std::thread::panicking() {
+            self.finish();
+        }
     }
 }

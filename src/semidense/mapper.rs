@@ -38,6 +38,9 @@ pub struct KeyframeDepth {
     pub scale: f32,
     /// The inter-keyframe check has run.
     pub checked: bool,
+    /// An interrupted run cut a neighbour this keyframe's check needs: never checked, so
+    /// never in the cloud.
+    unverifiable: bool,
     /// Depth + intra time, milliseconds (inter is added when it runs).
     elapsed_ms: f64,
 }
@@ -126,6 +129,8 @@ pub struct SemiDenseStats {
     pub skipped_no_neighbours: usize,
     /// ... because the store was full or, online, the thread's queue was full (overload).
     pub skipped_overload: usize,
+    /// ... because the run was interrupted (Ctrl-C) and the backlog was cut to end quickly.
+    pub skipped_cut: usize,
     /// Wall time spent reconstructing and checking keyframes, seconds.
     pub busy_s: f64,
 }
@@ -234,6 +239,37 @@ impl SemiDenseMapper {
         self.check_ready(map, true);
     }
 
+    /// End of an interrupted run: drops the keyframes still waiting for reconstruction
+    /// (counted as cut) and checks the reconstructed ones with the neighbours they have, so
+    /// the run ends within about one keyframe's time. Returns how many were cut.
+    pub fn flush_cut(&mut self, map: &Mutex<Map>) -> usize {
+        // Keyframes with a cut neighbour cannot get the inter-keyframe check they were
+        // reconstructed for; unchecked, they stay out of the cloud (and are counted as cut).
+        let mut unverifiable = 0;
+        for e in self.entries.iter_mut().filter(|e| !e.checked) {
+            if e.neighbours.iter().any(|n| self.pending.contains(n)) {
+                e.unverifiable = true;
+                unverifiable += 1;
+            }
+        }
+        let n = self.pending.len() + unverifiable;
+        self.pending.clear();
+        self.cut(n);
+        self.stats.keyframes_reconstructed -= unverifiable.min(self.stats.keyframes_reconstructed);
+        for e in 0..self.entries.len() {
+            if !self.entries[e].checked && !self.entries[e].unverifiable {
+                self.check(map, e);
+            }
+        }
+        n
+    }
+
+    /// Counts `n` keyframes that an interrupted run did not reconstruct or could not verify.
+    pub fn cut(&mut self, n: usize) {
+        self.stats.keyframes_skipped += n;
+        self.stats.skipped_cut += n;
+    }
+
     pub fn entries(&self) -> &[KeyframeDepth] {
         &self.entries
     }
@@ -320,6 +356,7 @@ impl SemiDenseMapper {
             anchors,
             scale: 1.0,
             checked: false,
+            unverifiable: false,
             elapsed_ms: t0.elapsed().as_secs_f64() * 1e3,
         });
         self.stats.busy_s += t0.elapsed().as_secs_f64();
