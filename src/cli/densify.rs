@@ -49,6 +49,8 @@ struct DensifyReport {
     semidense_accuracy: Option<sdslam::eval::CloudAccuracy>,
     wall_time_s: f64,
     timing_ms: TimingReport,
+    /// Why the input was not read to its end (Ctrl-C, an unreadable source), if it was not.
+    stopped_early: Option<String>,
 }
 
 pub fn densify(a: DensifyArgs) -> Result<()> {
@@ -80,14 +82,26 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
     let mut frame = Frame::new(info.width, info.height);
     let mut undist = Frame::new(info.width, info.height);
     let (mut with_pose, mut keyframes) = (0usize, 0usize);
+    let mut stopped_early = None;
+    super::signal::install();
     loop {
-        match opened.source.next_frame(&mut frame)? {
-            FrameStatus::Ready => {}
-            FrameStatus::Skipped { index, reason } => {
+        if super::signal::interrupted() {
+            note!("sdslam densify: interrupted; writing the keyframes reconstructed so far");
+            stopped_early = Some("interrupted (Ctrl-C)".to_string());
+            break;
+        }
+        match opened.source.next_frame(&mut frame) {
+            Ok(FrameStatus::Ready) => {}
+            Ok(FrameStatus::Skipped { index, reason }) => {
                 note!("warning: skipping unreadable frame {index}: {reason}");
                 continue;
             }
-            FrameStatus::End => break,
+            Ok(FrameStatus::End) => break,
+            Err(e) => {
+                note!("error: {e}; writing the keyframes reconstructed so far");
+                stopped_early = Some(e.to_string());
+                break;
+            }
         }
         let Some(pose) = pose_at(&poses, frame.timestamp, 0.02) else {
             continue;
@@ -124,6 +138,7 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
         keyframes,
         semidense_keyframes: sd.stats.keyframes_reconstructed,
         semidense_skipped_keyframes: sd.stats.keyframes_skipped,
+        stopped_early,
         ..Default::default()
     };
     report.timing_ms.semidense_keyframe = sd.t_keyframe.percentiles();
@@ -165,8 +180,8 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
         .as_ref()
         .map(|a| {
             format!(
-                "; median relative depth error {:.2}%, {:.1}% within 2%, {:.2}% off by > 10%",
-                a.median_relative_error * 100.0,
+                "; median relative depth error {}, {:.1}% within 2%, {:.2}% off by > 10%",
+                super::percent(a.median_relative_error),
                 a.within_2pct * 100.0,
                 a.outliers_10pct * 100.0
             )

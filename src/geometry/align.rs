@@ -5,6 +5,10 @@ use nalgebra::{Matrix3, Matrix4, UnitQuaternion, Vector3, Vector4};
 
 use super::Sim3;
 
+/// Iteration bound of the SVD and eigen solvers: they converge in tens of sweeps on 3x3 and
+/// 4x4 matrices; the bound turns a pathological input into `None` instead of a hang.
+const SOLVER_MAX_ITERATIONS: usize = 1000;
+
 /// The similarity `dst ≈ s R src + t` minimising squared error; `with_scale = false` gives the
 /// rigid (SE3) solution. `None` with fewer than 3 pairs or degenerate (collinear) sets.
 pub fn umeyama(src: &[Vector3<f64>], dst: &[Vector3<f64>], with_scale: bool) -> Option<Sim3> {
@@ -24,10 +28,11 @@ pub fn umeyama(src: &[Vector3<f64>], dst: &[Vector3<f64>], with_scale: bool) -> 
     }
     cov /= nf;
     var_s /= nf;
-    if var_s < 1e-18 {
+    // Non-finite sums (coordinates near 1e300 overflow) would make the iterative SVD spin.
+    if var_s < 1e-18 || !var_s.is_finite() || cov.iter().any(|x| !x.is_finite()) {
         return None;
     }
-    let svd = cov.svd(true, true);
+    let svd = cov.try_svd(true, true, f64::EPSILON, SOLVER_MAX_ITERATIONS)?;
     let (u, vt) = (svd.u?, svd.v_t?);
     let mut sgn = Matrix3::identity();
     if u.determinant() * vt.determinant() < 0.0 {
@@ -45,7 +50,8 @@ pub fn umeyama(src: &[Vector3<f64>], dst: &[Vector3<f64>], with_scale: bool) -> 
     } else {
         1.0
     };
-    let rotation = UnitQuaternion::from_matrix(&r);
+    let rotation =
+        UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(r));
     let translation = mu_d - scale * (rotation * mu_s);
     Some(Sim3 {
         scale,
@@ -73,7 +79,7 @@ pub fn horn(src: &[Vector3<f64>], dst: &[Vector3<f64>], with_scale: bool) -> Opt
         ss += a.norm_squared();
         sd += b.norm_squared();
     }
-    if ss < 1e-18 || sd < 1e-18 {
+    if ss < 1e-18 || sd < 1e-18 || !(ss + sd).is_finite() || m.iter().any(|x| !x.is_finite()) {
         return None;
     }
     let (sxx, sxy, sxz) = (m[(0, 0)], m[(0, 1)], m[(0, 2)]);
@@ -97,7 +103,7 @@ pub fn horn(src: &[Vector3<f64>], dst: &[Vector3<f64>], with_scale: bool) -> Opt
         syz + szy,
         -sxx - syy + szz,
     );
-    let eig = nmat.symmetric_eigen();
+    let eig = nmat.try_symmetric_eigen(f64::EPSILON, SOLVER_MAX_ITERATIONS)?;
     let (imax, _) = eig
         .eigenvalues
         .iter()

@@ -9,6 +9,10 @@ use crate::error::{Error, Result};
 use crate::eval::TimedPose;
 use crate::geometry::WorldFromCamera;
 
+/// Largest position coordinate accepted (a million km: beyond any map, still far from where
+/// squared distances overflow).
+const MAX_COORDINATE_M: f64 = 1e9;
+
 /// Parses TUM trajectory text; `path` names it in errors. Poses are returned sorted by time.
 pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Vec<TimedPose>> {
     let err = |line: usize, message: String| Error::Parse {
@@ -48,6 +52,16 @@ pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Vec<TimedPose>> {
                         format!("field {} ({t:?}) is not a finite number", k + 1),
                     )
                 })?;
+        }
+        if let Some(k) = (1..4).find(|&k| v[k].abs() > MAX_COORDINATE_M) {
+            return Err(err(
+                line,
+                format!(
+                    "field {} ({}) is beyond {MAX_COORDINATE_M:e} m: not a position",
+                    k + 1,
+                    toks[k]
+                ),
+            ));
         }
         let q = Quaternion::new(v[7], v[4], v[5], v[6]);
         let n = q.norm();
