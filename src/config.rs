@@ -222,6 +222,17 @@ impl Default for MapCapacityConfig {
     }
 }
 
+/// Upper bounds of the sizes, far beyond any use but below where counts overflow or a
+/// machine's memory runs out before the run starts. What a configuration reserves within them
+/// is checked against the machine's memory by the caller (`System::reserved_memory`).
+pub const MAX_FEATURES: usize = 100_000;
+pub const MAX_KEYFRAMES: usize = 100_000;
+pub const MAX_MAP_POINTS: usize = 50_000_000;
+pub const MAX_SEMIDENSE_POINTS: usize = 2_000_000_000;
+/// Worker threads for per-pixel work (more only oversubscribe the cores).
+pub const MAX_THREADS: usize = 64;
+use crate::semidense::MAX_NEIGHBOURS;
+
 /// The whole configuration.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -270,8 +281,8 @@ impl Config {
         if self.orb.n_levels == 0 || self.orb.n_levels > 16 {
             return bad("orb.n_levels", "must be in 1..=16");
         }
-        if self.orb.n_features == 0 {
-            return bad("orb.n_features", "must be positive");
+        if !(1..=MAX_FEATURES).contains(&self.orb.n_features) {
+            return bad("orb.n_features", &format!("must be in 1..={MAX_FEATURES}"));
         }
         if !(1.0..=100.0).contains(&self.orb.quadtree_oversampling) {
             return bad("orb.quadtree_oversampling", "must be in 1..=100");
@@ -283,17 +294,54 @@ impl Config {
             return bad("orb.min_th_fast", "must not exceed orb.ini_th_fast");
         }
         let sd = &self.semidense;
-        if sd.sigma_i <= 0.0 || sd.theta <= 0.0 || sd.lambda_g < 0.0 {
-            return bad(
-                "semidense",
-                "sigma_i and theta must be positive, lambda_g non-negative",
-            );
-        }
-        if sd.max_similarity_error <= 0.0 || !sd.max_similarity_error.is_finite() {
-            return bad(
+        // Written as `!(in range)` so that NaN, which fails every comparison, is refused.
+        let floats = [
+            (
+                "semidense.sigma_i",
+                sd.sigma_i,
+                0.0,
+                255.0,
+                "a positive number of grey levels up to 255",
+            ),
+            (
+                "semidense.theta",
+                sd.theta,
+                0.0,
+                100.0,
+                "a positive variance ratio",
+            ),
+            (
+                "semidense.lambda_l_deg",
+                sd.lambda_l_deg,
+                0.0,
+                90.0,
+                "an angle in (0, 90] degrees",
+            ),
+            (
+                "semidense.lambda_theta_deg",
+                sd.lambda_theta_deg,
+                0.0,
+                180.0,
+                "an angle in (0, 180] degrees",
+            ),
+            (
                 "semidense.max_similarity_error",
-                "must be a positive number",
-            );
+                sd.max_similarity_error,
+                0.0,
+                1e6,
+                "a positive number",
+            ),
+        ];
+        for (field, v, lo, hi, what) in floats {
+            if !(v > lo && v <= hi) {
+                return bad(field, &format!("must be {what} (got {v})"));
+            }
+        }
+        if !(sd.lambda_g >= 0.0 && sd.lambda_g <= 1e4) {
+            return bad("semidense.lambda_g", "must be a non-negative number");
+        }
+        if !(sd.min_baseline_ratio >= 0.0 && sd.min_baseline_ratio <= 10.0) {
+            return bad("semidense.min_baseline_ratio", "must be in [0, 10]");
         }
         if !(sd.prior_margin >= 0.0 && sd.prior_margin < 1.0) {
             return bad("semidense.prior_margin", "must be in [0, 1)");
@@ -301,16 +349,46 @@ impl Config {
         if sd.prior_cell_px != 0 && !(4..=1024).contains(&sd.prior_cell_px) {
             return bad("semidense.prior_cell_px", "must be 0 (off) or 4..=1024");
         }
-        if sd.n_neighbours == 0 || sd.lambda_n == 0 || sd.threads == 0 {
+        if !(1..=MAX_NEIGHBOURS).contains(&sd.n_neighbours) {
             return bad(
-                "semidense",
-                "n_neighbours, lambda_n and threads must be positive",
+                "semidense.n_neighbours",
+                &format!("must be in 1..={MAX_NEIGHBOURS}"),
             );
         }
-        if self.map.max_keyframes < 20 || self.map.max_map_points < 1000 {
+        if !(1..=sd.n_neighbours).contains(&sd.lambda_n) {
             return bad(
-                "map",
-                "max_keyframes must be >= 20 and max_map_points >= 1000",
+                "semidense.lambda_n",
+                "must be in 1..=n_neighbours (more compatible hypotheses than neighbours can never be found)",
+            );
+        }
+        if !(1..=MAX_THREADS).contains(&sd.threads) {
+            return bad(
+                "semidense.threads",
+                &format!("must be in 1..={MAX_THREADS}"),
+            );
+        }
+        if sd.keyframe_delay > 1000 {
+            return bad("semidense.keyframe_delay", "must be at most 1000 keyframes");
+        }
+        if !(-20..=19).contains(&sd.nice) {
+            return bad("semidense.nice", "must be a nice value in -20..=19");
+        }
+        if sd.max_points > MAX_SEMIDENSE_POINTS {
+            return bad(
+                "semidense.max_points",
+                &format!("must be at most {MAX_SEMIDENSE_POINTS}"),
+            );
+        }
+        if !(20..=MAX_KEYFRAMES).contains(&self.map.max_keyframes) {
+            return bad(
+                "map.max_keyframes",
+                &format!("must be in 20..={MAX_KEYFRAMES}"),
+            );
+        }
+        if !(1000..=MAX_MAP_POINTS).contains(&self.map.max_map_points) {
+            return bad(
+                "map.max_map_points",
+                &format!("must be in 1000..={MAX_MAP_POINTS}"),
             );
         }
         if let Some(d) = self.runtime.deadline_ms {

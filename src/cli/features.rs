@@ -52,6 +52,13 @@ pub fn features(a: FeaturesArgs) -> Result<()> {
     if a.repeat == 0 || a.n == 0 {
         return Err(Error::Invalid("--repeat and --n must be positive".into()));
     }
+    if a.n > sdslam::config::MAX_FEATURES {
+        return Err(Error::Invalid(format!(
+            "--n {}: at most {} features",
+            a.n,
+            sdslam::config::MAX_FEATURES
+        )));
+    }
     // One thread: the figure compared with other extractors is single-threaded.
     let base = match &a.config {
         Some(p) => sdslam::config::Config::load(p)?.orb,

@@ -128,6 +128,31 @@ pub fn dispatch(cli: Cli) -> Result<()> {
     }
 }
 
+/// Refuses a configuration whose preallocated map and semi-dense store would not fit in this
+/// machine's memory (a full map would be killed mid-run, or allocation aborts at the start).
+fn check_memory(calib: &sdslam::camera_model::Calibration, config: &sdslam::Config) -> Result<()> {
+    let need = sdslam::runtime::System::reserved_memory(calib, config);
+    let Some(have) = sdslam::io::machine_memory_bytes() else {
+        return Ok(());
+    };
+    // Leave a quarter of the machine to the rest of the process and the system.
+    let limit = have / 4 * 3;
+    if need.total() > limit {
+        let gb = |b: u64| b as f64 / 1e9;
+        return Err(sdslam::Error::Invalid(format!(
+            "the configuration reserves {:.1} GB (keyframes {:.1}, map points {:.1}, semi-dense store {:.1}) but this machine has {:.1} GB; the limit is {:.1} GB (3/4 of it): lower {}",
+            gb(need.total()),
+            gb(need.keyframes),
+            gb(need.map_points),
+            gb(need.semidense_store),
+            gb(have),
+            gb(limit),
+            need.largest_field()
+        )));
+    }
+    Ok(())
+}
+
 /// `x` as a percentage, or "n/a" when there was nothing to measure (a NaN median).
 fn percent(x: f64) -> String {
     if x.is_finite() {

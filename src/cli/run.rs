@@ -122,6 +122,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
     let mut opened = source::open(a.source.as_deref(), a.calib.as_deref(), a.frames, &a.camera)?;
     super::signal::install();
     let calib = opened.calibration.clone();
+    super::check_memory(&calib, &config)?;
     let groundtruth = opened.groundtruth.clone();
     let depth_truth = std::mem::replace(&mut opened.depth_truth, source::DepthTruth::None);
     // Ground truth beside the outputs, so `sdslam eval ate OUT/groundtruth.txt OUT/keyframes.txt`

@@ -41,6 +41,20 @@ pub fn peak_rss_mb() -> f64 {
     proc_status_mb("VmHWM:")
 }
 
+/// Physical memory of the machine in bytes (Linux `MemTotal`); `None` where unknown.
+pub fn machine_memory_bytes() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kb: u64 = s
+        .lines()
+        .find_map(|l| l.strip_prefix("MemTotal:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb * 1024)
+}
+
 /// Current resident memory of the process in MB (Linux; 0 elsewhere).
 pub fn current_rss_mb() -> f64 {
     proc_status_mb("VmRSS:")

@@ -66,6 +66,23 @@ impl KeyFrame {
         }
     }
 
+    /// Bytes this keyframe holds once its reserved buffers are filled (the slot's cost).
+    pub fn reserved_bytes(&self) -> usize {
+        fn cap<T>(v: &Vec<T>) -> usize {
+            v.capacity() * std::mem::size_of::<T>()
+        }
+        std::mem::size_of::<Self>()
+            + cap(&self.keypoints)
+            + cap(&self.descriptors)
+            + cap(&self.points)
+            // The grid stores one index per keypoint.
+            + self.keypoints.capacity() * std::mem::size_of::<u32>()
+            + cap(&self.gray)
+            + cap(&self.colour)
+            + cap(&self.covisibles)
+            + cap(&self.children)
+    }
+
     /// Clears the contents, keeping every buffer's capacity.
     pub fn clear(&mut self) {
         self.keypoints.clear();

@@ -41,6 +41,12 @@ impl MapPoint {
         }
     }
 
+    /// Bytes this point's slot holds with its reserved observations.
+    pub fn reserved_bytes(&self) -> usize {
+        std::mem::size_of::<Self>()
+            + self.observations.capacity() * std::mem::size_of::<(KeyFrameId, u32)>()
+    }
+
     pub fn clear(&mut self) {
         self.observations.clear();
         self.reference_kf = None;

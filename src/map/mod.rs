@@ -80,6 +80,16 @@ pub struct Map {
 }
 
 impl Map {
+    /// Bytes a map with `config` holds when full: (per keyframe slot, per map-point slot).
+    /// Measured on one slot of each, so it follows the types.
+    pub fn slot_bytes(config: &MapConfig) -> (usize, usize) {
+        let kf = KeyFrame::with_capacity(config.max_features, config.width, config.height);
+        (
+            kf.reserved_bytes() + std::mem::size_of::<u32>(),
+            MapPoint::with_capacity(8).reserved_bytes(),
+        )
+    }
+
     /// Allocates every keyframe and map-point buffer up front.
     pub fn new(config: MapConfig) -> Self {
         let kf_pool = (0..config.max_keyframes)

@@ -12,5 +12,5 @@ pub use priority::{
     ForegroundGate,
 };
 pub use report::{Report, TimingReport};
-pub use system::{FrameResult, System, SystemStats};
+pub use system::{FrameResult, ReservedMemory, System, SystemStats};
 pub use timing::{Percentiles, StageTimer};

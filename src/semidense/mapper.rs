@@ -159,6 +159,9 @@ pub struct SemiDenseMapper {
     pub t_keyframe: StageTimer,
 }
 
+/// Bytes per stored semi-dense pixel (`[semidense] max_points` of them are reserved).
+pub const STORED_PIXEL_BYTES: usize = std::mem::size_of::<CloudPixel>();
+
 impl SemiDenseMapper {
     /// Reserves everything for `width` x `height` keyframes, `max_keyframes` reconstructed
     /// keyframes and `max_points` stored pixels.
