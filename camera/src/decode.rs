@@ -34,9 +34,20 @@ impl ImageDecoderBuf {
     ) -> Result<(), SourceError> {
         use std::io::Read;
         self.bytes.clear();
-        let mut f = std::fs::File::open(path).map_err(|e| SourceError::io(path, e))?;
-        f.read_to_end(&mut self.bytes)
+        let f = std::fs::File::open(path).map_err(|e| SourceError::io(path, e))?;
+        let cap = max_file_bytes(expect);
+        f.take(cap + 1)
+            .read_to_end(&mut self.bytes)
             .map_err(|e| SourceError::io(path, e))?;
+        if self.bytes.len() as u64 > cap {
+            self.bytes = Vec::new();
+            return Err(SourceError::Decode {
+                path: path.to_path_buf(),
+                message: format!(
+                    "file is larger than {cap} bytes, more than any encoding of an image of this size"
+                ),
+            });
+        }
         let bytes = std::mem::take(&mut self.bytes);
         let r = self.decode(&bytes, path, expect, out);
         self.bytes = bytes;
@@ -63,6 +74,11 @@ impl ImageDecoderBuf {
             .map_err(|e| derr(e.to_string()))?;
         if reader.format().is_none() {
             return Err(derr("unknown image format (PNG or JPEG expected)".into()));
+        }
+        if reader.format() == Some(image::ImageFormat::Jpeg) && !jpeg_is_complete(bytes) {
+            return Err(derr(
+                "truncated JPEG (no end-of-image marker after the scan)".into(),
+            ));
         }
         let dec = reader.into_decoder().map_err(|e| derr(e.to_string()))?;
         let (w, h) = dec.dimensions();
@@ -115,6 +131,26 @@ impl ImageDecoderBuf {
             other => return Err(derr(format!("unsupported pixel type {other:?}"))),
         }
         Ok(())
+    }
+}
+
+/// Largest image file read: an uncompressed 16-bit RGBA encoding of the expected size (or of
+/// [`MAX_PIXELS`]) plus room for metadata; a padded or endless file is refused unread.
+fn max_file_bytes(expect: Option<(u32, u32)>) -> u64 {
+    let pixels = expect.map_or(MAX_PIXELS, |(w, h)| w as u64 * h as u64);
+    pixels.min(MAX_PIXELS) * 8 + (16 << 20)
+}
+
+/// True when the last scan (SOS marker `FF DA`) is followed by the end-of-image marker
+/// `FF D9`. Entropy-coded data stuffs every `FF` with `00`, so neither marker appears inside
+/// it; an EXIF thumbnail's own markers come before the main image's scan. A file cut short
+/// (a partial write, a dropped USB transfer) has no EOI after its scan: the decoder would
+/// fill the rest with grey and features would be tracked on it.
+fn jpeg_is_complete(bytes: &[u8]) -> bool {
+    let last = |m: u8| bytes.windows(2).rposition(|w| w[0] == 0xFF && w[1] == m);
+    match (last(0xDA), last(0xD9)) {
+        (Some(sos), Some(eoi)) => eoi > sos,
+        _ => false,
     }
 }
 
@@ -216,6 +252,45 @@ mod tests {
             }
         }
         !c
+    }
+
+    #[test]
+    fn rejects_a_truncated_jpeg_and_accepts_trailing_padding() {
+        let img = image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([(x * 4) as u8, (y * 5) as u8, 7]));
+        let mut jpg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
+            .encode_image(&img)
+            .unwrap();
+        let mut d = ImageDecoderBuf::new();
+        let mut f = Frame::new(64, 48);
+        d.decode(&jpg, Path::new("a.jpg"), None, &mut f).unwrap();
+        for cut in [jpg.len() / 3, jpg.len() - 2] {
+            let e = d
+                .decode(&jpg[..cut], Path::new("t.jpg"), None, &mut f)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("t.jpg") && e.contains("truncated"), "{e}");
+        }
+        let mut padded = jpg.clone();
+        padded.extend_from_slice(&[0; 100]);
+        d.decode(&padded, Path::new("p.jpg"), None, &mut f).unwrap();
+    }
+
+    #[test]
+    fn refuses_a_padded_file_without_reading_it_whole() {
+        let dir = std::env::temp_dir().join(format!("sdslam-decode-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("big.png");
+        let mut bytes = encode_png_gray(8, 4);
+        bytes.resize(20 << 20, 0);
+        std::fs::write(&p, &bytes).unwrap();
+        let mut f = Frame::new(8, 4);
+        let e = ImageDecoderBuf::new()
+            .read_file(&p, Some((8, 4)), &mut f)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("big.png") && e.contains("larger than"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
