@@ -261,7 +261,9 @@ impl Config {
     }
 
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text =
+            sdslam_camera::capped::read_text_capped(path, sdslam_camera::capped::SETTINGS_CAP)
+                .map_err(|e| Error::io(path, e))?;
         Self::parse(&text, path)
     }
 

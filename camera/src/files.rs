@@ -25,7 +25,8 @@ pub struct ImageListSource {
 }
 
 fn read_text(path: &Path) -> Result<String, SourceError> {
-    std::fs::read_to_string(path).map_err(|e| SourceError::io(path, e))
+    crate::capped::read_text_capped(path, crate::capped::LIST_CAP)
+        .map_err(|e| SourceError::io(path, e))
 }
 
 fn is_image(p: &Path) -> bool {

@@ -6,6 +6,7 @@
 //! written into caller-owned, preallocated [`Frame`] buffers so the consumer never
 //! allocates per frame.
 
+pub mod capped;
 pub mod decode;
 pub mod device;
 pub mod error;

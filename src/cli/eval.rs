@@ -157,7 +157,8 @@ fn cloud(a: CloudArgs) -> Result<()> {
     let kf_path = a.keyframes.unwrap_or_else(|| a.run.join("keyframes.txt"));
     let est = read_tum_trajectory(&kf_path)?;
     let ply_path = a.run.join("semidense.ply");
-    let bytes = std::fs::read(&ply_path).map_err(|e| Error::io(&ply_path, e))?;
+    let bytes = sdslam_camera::capped::read_capped(&ply_path, sdslam_camera::capped::BULK_CAP)
+        .map_err(|e| Error::io(&ply_path, e))?;
     let mut points = decode_ply(&bytes, &ply_path)?;
     let calib = load_calibration(&a.gt.join("camera.yaml"))?;
     let cam = &calib.camera;

@@ -28,7 +28,8 @@ fn cell(v: &serde_json::Value) -> String {
 
 pub fn write_report(run: &Path) -> Result<()> {
     let rp = run.join("report.json");
-    let text = std::fs::read_to_string(&rp).map_err(|e| Error::io(&rp, e))?;
+    let text = sdslam_camera::capped::read_text_capped(&rp, sdslam_camera::capped::SETTINGS_CAP)
+        .map_err(|e| Error::io(&rp, e))?;
     let r: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| Error::Invalid(format!("{}: not a run report: {e}", rp.display())))?;
     let obj = r

@@ -61,7 +61,8 @@ pub fn record(a: RecordArgs) -> Result<()> {
     std::fs::create_dir_all(&rgb_dir).map_err(|e| Error::io(&rgb_dir, e))?;
     let opened = source::open(Some(&a.source), a.calib.as_deref(), a.frames, &a.camera)?;
     if let Some(c) = &a.calib {
-        let bytes = std::fs::read(c).map_err(|e| Error::io(c, e))?;
+        let bytes = sdslam_camera::capped::read_capped(c, sdslam_camera::capped::SETTINGS_CAP)
+            .map_err(|e| Error::io(c, e))?;
         write_atomic(&a.out.join("camera.yaml"), &bytes)?;
     }
     super::signal::install();

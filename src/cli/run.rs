@@ -162,7 +162,8 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         !a.deterministic,
     );
     if let Some(path) = &a.load_map {
-        let bytes = std::fs::read(path).map_err(|e| sdslam::Error::io(path, e))?;
+        let bytes = sdslam_camera::capped::read_capped(path, sdslam_camera::capped::BULK_CAP)
+            .map_err(|e| sdslam::Error::io(path, e))?;
         let snap = sdslam::map::persist::MapSnapshot::decode(&bytes)
             .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", path.display())))?;
         let n = system

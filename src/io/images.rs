@@ -55,7 +55,9 @@ use image::ImageEncoder;
 
 /// Reads a 16-bit depth PNG into metres (value / `factor`; 0 stays 0 = no depth).
 pub fn read_depth_png(path: &Path, factor: f32) -> Result<(u32, u32, Vec<f32>)> {
-    let img = image::open(path)
+    let bytes = sdslam_camera::capped::read_capped(path, sdslam_camera::capped::BULK_CAP)
+        .map_err(|e| Error::io(path, e))?;
+    let img = image::load_from_memory(&bytes)
         .map_err(|e| Error::Invalid(format!("{}: cannot read depth image: {e}", path.display())))?;
     let (w, h) = (img.width(), img.height());
     let px = img.into_luma16();
@@ -74,7 +76,8 @@ pub fn load_tum_depth_frames(
     wanted: Option<&[f64]>,
 ) -> Result<Vec<crate::eval::DepthFrame>> {
     let list = dir.join("depth.txt");
-    let text = std::fs::read_to_string(&list).map_err(|e| Error::io(&list, e))?;
+    let text = sdslam_camera::capped::read_text_capped(&list, sdslam_camera::capped::LIST_CAP)
+        .map_err(|e| Error::io(&list, e))?;
     let mut entries = sdslam_camera::list::parse_tum(&text, &list)?;
     entries.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
     // Only the depth map nearest in time to some wanted timestamp (the evaluation uses no

@@ -23,7 +23,8 @@ use crate::error::{Error, Result};
 
 /// Reads and parses a calibration file (ORB-SLAM YAML or EuRoC `sensor.yaml`).
 pub fn load_calibration(path: &Path) -> Result<Calibration> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = sdslam_camera::capped::read_text_capped(path, sdslam_camera::capped::SETTINGS_CAP)
+        .map_err(|e| Error::io(path, e))?;
     Ok(Calibration::parse(&text, &path.display().to_string())?)
 }
 
@@ -75,7 +76,17 @@ fn proc_status_mb(key: &str) -> f64 {
 /// Reads a vocabulary: sdslam's binary format, or a DBoW2 text vocabulary (`ORBvoc.txt`
 /// layout, recognised by its text header). Errors name the file.
 pub fn load_vocabulary(path: &Path) -> Result<crate::place_recognition::Vocabulary> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    // Recognise the format from the head first: an endless or binary non-vocabulary file
+    // (`/dev/zero`) is refused without reading it.
+    let head = sdslam_camera::capped::read_head(path, 4096).map_err(|e| Error::io(path, e))?;
+    if !head.starts_with(b"SDSLVOC") && head.contains(&0) {
+        return Err(Error::Invalid(format!(
+            "{}: neither an sdslam vocabulary nor DBoW2 text",
+            path.display()
+        )));
+    }
+    let bytes = sdslam_camera::capped::read_capped(path, sdslam_camera::capped::BULK_CAP)
+        .map_err(|e| Error::io(path, e))?;
     let named = |e: crate::place_recognition::VocabularyFormatError| {
         Error::Invalid(format!("{}: {e}", path.display()))
     };

@@ -81,7 +81,8 @@ pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Vec<TimedPose>> {
 }
 
 pub fn read_tum_trajectory(path: &Path) -> Result<Vec<TimedPose>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = sdslam_camera::capped::read_text_capped(path, sdslam_camera::capped::LIST_CAP)
+        .map_err(|e| Error::io(path, e))?;
     parse_tum_trajectory(&text, path)
 }
 
