@@ -24,6 +24,40 @@ pub struct ImageListSource {
     kind: ListKind,
 }
 
+/// Orders names with their digit runs compared as numbers (`frame2` < `frame10`); equal
+/// numbers with different zero padding fall back to the plain order.
+pub fn natural_cmp(a: &str, b: &str) -> std::cmp::Ordering {
+    use std::cmp::Ordering;
+    let (mut x, mut y) = (a.as_bytes(), b.as_bytes());
+    loop {
+        match (x.first(), y.first()) {
+            (None, None) => return a.cmp(b),
+            (None, Some(_)) => return Ordering::Less,
+            (Some(_), None) => return Ordering::Greater,
+            (Some(c), Some(d)) if c.is_ascii_digit() && d.is_ascii_digit() => {
+                let run = |s: &[u8]| s.iter().take_while(|c| c.is_ascii_digit()).count();
+                let (n, m) = (run(x), run(y));
+                let strip = |s: &[u8]| {
+                    let z = s.iter().take_while(|&&c| c == b'0').count();
+                    s[z.min(s.len().saturating_sub(1))..].to_vec()
+                };
+                let (p, q) = (strip(&x[..n]), strip(&y[..m]));
+                let o = p.len().cmp(&q.len()).then_with(|| p.cmp(&q));
+                if o != Ordering::Equal {
+                    return o;
+                }
+                (x, y) = (&x[n..], &y[m..]);
+            }
+            (Some(c), Some(d)) => {
+                if c != d {
+                    return c.cmp(d);
+                }
+                (x, y) = (&x[1..], &y[1..]);
+            }
+        }
+    }
+}
+
 fn read_text(path: &Path) -> Result<String, SourceError> {
     crate::capped::read_text_capped(path, crate::capped::LIST_CAP)
         .map_err(|e| SourceError::io(path, e))
@@ -85,7 +119,9 @@ impl ImageListSource {
             .map(|e| PathBuf::from(e.file_name()))
             .filter(|p| is_image(p))
             .collect();
-        images.sort();
+        // Numbers in names compare as numbers: `2.jpg` before `10.jpg` (a plain sort pairs
+        // `10.jpg` with the third timestamp).
+        images.sort_by(|a, b| natural_cmp(&a.to_string_lossy(), &b.to_string_lossy()));
         if images.is_empty() {
             return Err(SourceError::Invalid {
                 path: dir.to_path_buf(),
@@ -259,6 +295,17 @@ impl FrameSource for ImageListSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn image_names_sort_with_numbers_as_numbers() {
+        let mut v = vec!["10.jpg", "2.jpg", "0.jpg", "1.jpg", "frame_11.png", "frame_9.png", "002.jpg"];
+        v.sort_by(|a, b| natural_cmp(a, b));
+        assert_eq!(v, ["0.jpg", "1.jpg", "002.jpg", "2.jpg", "10.jpg", "frame_9.png", "frame_11.png"]);
+        // Zero-padded names (the usual case) keep their plain order.
+        let mut w = vec!["000010.png", "000002.png", "000100.png"];
+        w.sort_by(|a, b| natural_cmp(a, b));
+        assert_eq!(w, ["000002.png", "000010.png", "000100.png"]);
+    }
     use std::io::Write;
 
     fn write_png(path: &Path, w: u32, h: u32, v: u8) {
