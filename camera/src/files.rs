@@ -298,9 +298,28 @@ mod tests {
 
     #[test]
     fn image_names_sort_with_numbers_as_numbers() {
-        let mut v = vec!["10.jpg", "2.jpg", "0.jpg", "1.jpg", "frame_11.png", "frame_9.png", "002.jpg"];
+        let mut v = vec![
+            "10.jpg",
+            "2.jpg",
+            "0.jpg",
+            "1.jpg",
+            "frame_11.png",
+            "frame_9.png",
+            "002.jpg",
+        ];
         v.sort_by(|a, b| natural_cmp(a, b));
-        assert_eq!(v, ["0.jpg", "1.jpg", "002.jpg", "2.jpg", "10.jpg", "frame_9.png", "frame_11.png"]);
+        assert_eq!(
+            v,
+            [
+                "0.jpg",
+                "1.jpg",
+                "002.jpg",
+                "2.jpg",
+                "10.jpg",
+                "frame_9.png",
+                "frame_11.png"
+            ]
+        );
         // Zero-padded names (the usual case) keep their plain order.
         let mut w = vec!["000010.png", "000002.png", "000100.png"];
         w.sort_by(|a, b| natural_cmp(a, b));

@@ -113,11 +113,18 @@ impl<'a> Fields<'a> {
     }
 
     fn size(&self, key: &str, v: f64, line: Option<usize>) -> Result<u32, CalibError> {
-        if v < 1.0 || v.fract() != 0.0 || v > 65535.0 {
+        if !(v >= 1.0 && v.fract() == 0.0) {
             return Err(self.err(
                 line,
                 key,
                 format!("{v} is not a positive whole number of pixels"),
+            ));
+        }
+        if v > 65535.0 {
+            return Err(self.err(
+                line,
+                key,
+                format!("{v} pixels is beyond the largest image side sdslam accepts (65535)"),
             ));
         }
         Ok(v as u32)
@@ -136,6 +143,11 @@ fn syntax(file: &str, e: yaml::YamlSyntaxError) -> CalibError {
         message: e.message,
     }
 }
+
+/// Narrowest and widest field of view of a pinhole calibration (fisheye lenses beyond it need
+/// another camera model).
+const MIN_FOV_DEG: f64 = 1.0;
+const MAX_FOV_DEG: f64 = 170.0;
 
 impl Calibration {
     /// Parses either layout, recognised by its keys (`intrinsics` means EuRoC).
@@ -326,6 +338,64 @@ impl Calibration {
         if self.fps <= 0.0 {
             return fail("fps", format!("frame rate {} must be positive", self.fps));
         }
+        // What cannot be a pinhole camera: a field of view outside 1..170 degrees, pixels far
+        // from square, or a distortion that folds over or scales the image corners beyond 5x.
+        let fov = |f: f64, side: u32| 2.0 * (side as f64 / (2.0 * f)).atan().to_degrees();
+        for (name, focal, side) in [("fx", c.fx, c.width), ("fy", c.fy, c.height)] {
+            let deg = fov(focal, side);
+            if !(MIN_FOV_DEG..=MAX_FOV_DEG).contains(&deg) {
+                return fail(
+                    name,
+                    format!(
+                        "focal length {focal} gives a {deg:.3} degree field of view over {side} pixels; a camera has {MIN_FOV_DEG}..{MAX_FOV_DEG}"
+                    ),
+                );
+            }
+        }
+        let aspect = c.fx / c.fy;
+        if !(0.5..=2.0).contains(&aspect) {
+            return fail(
+                "fy",
+                format!("fx / fy = {aspect:.3}: pixels this far from square are not a camera (0.5..2 accepted)"),
+            );
+        }
+        // Radial factor over the undistorted radii up to the image corner's.
+        let (dx, dy) = (
+            c.cx.max(c.width as f64 - c.cx) / c.fx,
+            c.cy.max(c.height as f64 - c.cy) / c.fy,
+        );
+        let r_corner = (dx * dx + dy * dy).sqrt();
+        let factor = |r: f64| {
+            let r2 = r * r;
+            1.0 + r2 * (c.k1 + r2 * (c.k2 + r2 * c.k3))
+        };
+        let slope = |r: f64| {
+            let r2 = r * r;
+            1.0 + r2 * (3.0 * c.k1 + r2 * (5.0 * c.k2 + r2 * 7.0 * c.k3))
+        };
+        const STEPS: usize = 64;
+        for i in 1..=STEPS {
+            let r = r_corner * i as f64 / STEPS as f64;
+            if !(slope(r) > 0.0) {
+                return fail(
+                    "k1",
+                    format!(
+                        "radial distortion (k1 {}, k2 {}, k3 {}) folds over inside the image (at {:.0}% of the corner radius): not a lens",
+                        c.k1, c.k2, c.k3, 100.0 * i as f64 / STEPS as f64
+                    ),
+                );
+            }
+        }
+        let at_corner = factor(r_corner);
+        if !(0.2..=5.0).contains(&at_corner) {
+            return fail(
+                "k1",
+                format!(
+                    "radial distortion (k1 {}, k2 {}, k3 {}) scales the image corners by {at_corner:.2}: not a lens (0.2..5 accepted)",
+                    c.k1, c.k2, c.k3
+                ),
+            );
+        }
         Ok(())
     }
 
@@ -432,6 +502,51 @@ mod tests {
         assert!(e.contains("Camera.k1") && e.contains("finite"), "{e}");
         let e = err_of(&DESK.replace("Camera.width: 640", "Camera.width: 64.5"));
         assert!(e.contains("Camera.width"), "{e}");
+    }
+
+    #[test]
+    fn what_cannot_be_a_camera_is_refused() {
+        for (from, to, field, why) in [
+            (
+                "Camera.fx: 520.0",
+                "Camera.fx: 1e30",
+                "Camera.fx",
+                "field of view",
+            ),
+            (
+                "Camera.fx: 520.0",
+                "Camera.fx: 1e-30",
+                "Camera.fx",
+                "field of view",
+            ),
+            (
+                "Camera.fy: 520.0",
+                "Camera.fy: 0.001",
+                "Camera.fy",
+                "field of view",
+            ),
+            (
+                "Camera.fy: 520.0",
+                "Camera.fy: 2000.0",
+                "Camera.fy",
+                "square",
+            ),
+            ("Camera.k1: 0.0", "Camera.k1: 50.0", "Camera.k1", "corners"),
+            (
+                "Camera.k1: 0.0",
+                "Camera.k1: -3.0",
+                "Camera.k1",
+                "folds over",
+            ),
+        ] {
+            let e = err_of(&DESK.replace(from, to));
+            assert!(e.contains(field) && e.contains(why), "{to}: {e}");
+        }
+        // A real wide-angle lens (EuRoC's cam0 distortion) is accepted.
+        let ok = DESK
+            .replace("Camera.k1: 0.0", "Camera.k1: -0.2834")
+            .replace("Camera.k2: 0.0", "Camera.k2: 0.0739");
+        Calibration::parse(&ok, "cam.yaml").unwrap();
     }
 
     #[test]

@@ -207,11 +207,12 @@ pub fn open(
             if let Some(n) = frames {
                 src.limit(0, Some(n));
             }
-            let default_calib = if dir.join("rgb.txt").is_file() {
-                Some(dir.join("camera.yaml"))
-            } else {
-                euroc_cam_dir(dir).map(|c| c.join("sensor.yaml"))
-            };
+            let default_calib =
+                if dir.join("rgb.txt").is_file() || dir.join("camera.yaml").is_file() {
+                    Some(dir.join("camera.yaml"))
+                } else {
+                    euroc_cam_dir(dir).map(|c| c.join("sensor.yaml"))
+                };
             let calib_path = match (calib, default_calib) {
                 (Some(p), _) => p.to_path_buf(),
                 (None, Some(p)) if p.is_file() => p,

@@ -78,6 +78,8 @@ pub enum MapFileError {
     Version { found: u32, expected: u32 },
     #[error("truncated: {got} bytes of payload, {expected} expected")]
     Truncated { got: u64, expected: u64 },
+    #[error("{got} bytes of payload where the header says {expected}: bytes were appended or the header is corrupt")]
+    TooLong { got: u64, expected: u64 },
     #[error("checksum mismatch: the file is corrupt")]
     Checksum,
     #[error("payload does not decode: {0}")]
@@ -352,11 +354,12 @@ impl MapSnapshot {
         len8.copy_from_slice(&bytes[12..20]);
         let len = u64::from_le_bytes(len8);
         let payload = &bytes[HEADER..];
-        if payload.len() as u64 != len {
-            return Err(MapFileError::Truncated {
-                got: payload.len() as u64,
-                expected: len,
-            });
+        let got = payload.len() as u64;
+        if got < len {
+            return Err(MapFileError::Truncated { got, expected: len });
+        }
+        if got > len {
+            return Err(MapFileError::TooLong { got, expected: len });
         }
         if crc32fast::hash(payload) != u32_at(20) {
             return Err(MapFileError::Checksum);
