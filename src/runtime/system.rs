@@ -59,6 +59,8 @@ pub struct SystemStats {
     pub tracked_frames: usize,
     pub keyframes_created: usize,
     pub resets: usize,
+    /// Poses dropped from the trajectory by resets (they were in the discarded map's frame).
+    pub poses_discarded_by_reset: usize,
     /// Frames before initialisation tracked afterwards against the first map.
     pub backfilled_frames: usize,
     pub orb_extraction: StageTimer,
@@ -83,6 +85,10 @@ pub struct SystemStats {
 fn lock(map: &Mutex<Map>) -> MutexGuard<'_, Map> {
     map.lock().unwrap_or_else(|e| e.into_inner())
 }
+
+/// Frames a map of at most 5 keyframes is kept while tracking is lost, trying to relocalise
+/// in it, before it is discarded and initialisation starts over (one second at 30 fps).
+const YOUNG_MAP_PATIENCE_FRAMES: usize = 30;
 
 pub struct System {
     pub camera: PinholeRadtan,
@@ -114,6 +120,10 @@ pub struct System {
     localize_only: bool,
     frame: TrackedFrame,
     trajectory: Vec<TrajectoryEntry>,
+    /// Consecutive lost frames while the map has at most 5 keyframes.
+    young_map_lost_frames: usize,
+    /// Consecutive frames initialisation has failed (for a warning).
+    uninitialised_frames: usize,
     pub stats: SystemStats,
 }
 
@@ -266,9 +276,12 @@ impl System {
             backfill: Backfill::default(),
             frame: TrackedFrame::new(max_features, w, h),
             trajectory: Vec::with_capacity(expected_frames),
+            young_map_lost_frames: 0,
+            uninitialised_frames: 0,
             stats: SystemStats {
                 frames: 0,
                 tracked_frames: 0,
+                poses_discarded_by_reset: 0,
                 keyframes_created: 0,
                 resets: 0,
                 backfilled_frames: 0,
@@ -442,7 +455,7 @@ impl System {
         let state = if self.tracker.state == TrackingState::NotInitialised {
             self.initialize(map, gray, rgb)
         } else {
-            let st = if self.tracker.state == TrackingState::Lost && map.n_keyframes() > 5 {
+            let st = if self.tracker.state == TrackingState::Lost {
                 self.relocalise(map)
             } else {
                 self.tracker.track(map, &mut self.frame)
@@ -461,8 +474,15 @@ impl System {
                 self.stats.keyframe_insertion.record(tk.elapsed());
             }
             if st == TrackingState::Lost && map.n_keyframes() <= 5 && !self.localize_only {
-                // Lost right after initialisation: start over (ORB-SLAM's policy).
-                self.reset(map);
+                // Lost right after initialisation: relocalise in the young map for a while (a
+                // short blackout, a covered lens), then start over (ORB-SLAM resets at once).
+                self.young_map_lost_frames += 1;
+                if self.young_map_lost_frames > YOUNG_MAP_PATIENCE_FRAMES {
+                    self.young_map_lost_frames = 0;
+                    self.reset(map);
+                }
+            } else if st == TrackingState::Ok {
+                self.young_map_lost_frames = 0;
             }
             self.tracker.state
         };
@@ -560,9 +580,16 @@ impl System {
         self.semidense.reset();
         self.tracker.state = TrackingState::NotInitialised;
         self.tracker.reference_kf = None;
+        self.tracker.reference_pose = None;
         self.tracker.velocity = None;
         self.init.reset();
         self.stats.resets += 1;
+        // The poses so far are in the discarded map's world frame (every reset discards the
+        // whole map): a trajectory must never mix two frames, so they are dropped and counted.
+        let discarded = self.trajectory.len();
+        self.trajectory.clear();
+        self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(discarded);
+        self.stats.poses_discarded_by_reset += discarded;
         tracing::warn!("lost right after initialisation: map reset, initialising again");
     }
 

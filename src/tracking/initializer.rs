@@ -39,6 +39,14 @@ pub struct Initializer {
     /// exists); a fixed ring of `pending_capacity` slots, reused.
     pub pending: Vec<PendingFrame>,
     pending_len: usize,
+    /// Attempts against the current reference refused for a reason other than too little
+    /// parallax (ambiguous motion, too few triangulated points).
+    refused: usize,
+    /// After this many refused attempts in a row the current frame becomes the reference.
+    /// Not ORB-SLAM's policy, which keeps the reference while matches last: an ambiguity
+    /// comes from the geometry of the two views and does not go away as the camera moves on,
+    /// so a fixed reference can refuse for ever (seen after a map reset on `posters`).
+    pub max_refused_attempts: usize,
 }
 
 /// A frame between the reference and initialisation, kept for backfilling its pose.
@@ -74,6 +82,8 @@ impl Initializer {
                 })
                 .collect(),
             pending_len: 0,
+            refused: 0,
+            max_refused_attempts: 15,
         }
     }
 
@@ -96,10 +106,12 @@ impl Initializer {
     pub fn reset(&mut self) {
         self.reference = None;
         self.pending_len = 0;
+        self.refused = 0;
     }
 
     fn set_reference(&mut self, f: &TrackedFrame, gray: &[u8], rgb: Option<&[u8]>) {
         self.pending_len = 0;
+        self.refused = 0;
         self.reference = Some(f.features.clone());
         self.reference_index = f.index;
         self.reference_timestamp = f.timestamp;
@@ -183,7 +195,17 @@ impl Initializer {
                 InitAttempt::Ready
             }
             Err(e) => {
-                self.keep_pending(f);
+                if matches!(e, TwoViewError::Degenerate { .. }) {
+                    // Too little parallax yet: keep the reference, the baseline grows.
+                    self.keep_pending(f);
+                    return InitAttempt::Failed(e);
+                }
+                self.refused += 1;
+                if self.refused >= self.max_refused_attempts {
+                    self.set_reference(f, gray, rgb);
+                } else {
+                    self.keep_pending(f);
+                }
                 InitAttempt::Failed(e)
             }
         }

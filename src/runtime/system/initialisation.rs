@@ -2,6 +2,9 @@
 
 use super::*;
 
+/// Consecutive frames without initialisation after which a warning says why.
+const NOT_INITIALISED_WARNING_FRAMES: usize = 90;
+
 impl System {
     pub(super) fn initialize(
         &mut self,
@@ -12,9 +15,27 @@ impl System {
         let mut ready = None;
         let k = self.camera.k();
         let t_attempt = std::time::Instant::now();
-        if self.init.attempt(&self.frame, gray, rgb, &k, &mut ready) != InitAttempt::Ready {
+        let attempt = self.init.attempt(&self.frame, gray, rgb, &k, &mut ready);
+        tracing::debug!(
+            frame = self.frame.index,
+            features = self.frame.features.len(),
+            reference = self.init.reference_index,
+            ?attempt,
+            "initialisation attempt"
+        );
+        if attempt != InitAttempt::Ready {
+            self.uninitialised_frames += 1;
+            // Say so once when initialisation keeps failing (about 3 s at 30 fps), with why.
+            if self.uninitialised_frames == NOT_INITIALISED_WARNING_FRAMES {
+                tracing::warn!(
+                    frames = self.uninitialised_frames,
+                    last_attempt = ?attempt,
+                    "not initialised yet: the camera needs to translate (not only rotate) over a textured, non-planar scene"
+                );
+            }
             return TrackingState::NotInitialised;
         }
+        self.uninitialised_frames = 0;
         let Some((motion, pairs)) = ready else {
             return TrackingState::NotInitialised;
         };
