@@ -39,11 +39,6 @@ fn twenty_loops_keep_memory_flat_and_the_map_bounded() {
             if r.state == TrackingState::Ok {
                 tracked += 1;
             }
-            let (kfs, pts) = system.map_size();
-            assert!(
-                kfs <= 40 && pts <= 5_000,
-                "map grew to {kfs} keyframes, {pts} points"
-            );
         }
         rss.push(current_rss_mb());
         eprintln!(
@@ -55,6 +50,20 @@ fn twenty_loops_keep_memory_flat_and_the_map_bounded() {
             tracked >= 285,
             "lap {lap}: only {tracked} of 300 frames tracked"
         );
+        // Eviction ran (more keyframes made than the map has slots) and left a usable map,
+        // not an emptied one: the arena's capacity alone is not the check.
+        let (kfs, pts) = system.map_size();
+        if lap >= 1 {
+            assert!(
+                system.stats.keyframes_created > 40,
+                "lap {lap}: only {} keyframes made in all: eviction never ran",
+                system.stats.keyframes_created
+            );
+            assert!(
+                kfs >= 10 && pts >= 500,
+                "lap {lap}: eviction emptied the map ({kfs} keyframes, {pts} points)"
+            );
+        }
     }
     // After the first lap (buffers warmed up, map at capacity): flat within 5%.
     let growth = (rss[LAPS - 1] - rss[1]) / rss[1];

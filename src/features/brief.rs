@@ -171,32 +171,54 @@ mod tests {
     use super::*;
 
     /// The AVX2 gathers give the portable descriptor bit for bit.
+    /// The descriptor bit by bit from the pattern: each point rotated alone and read through
+    /// the image's own indexing (not `describe`'s window offsets).
+    fn naive(img: &PaddedImage, x: isize, y: isize, a: f32) -> Descriptor {
+        let (s, c) = steer(a);
+        let rot = |q: [i8; 2]| {
+            let (px, py) = (q[0] as i32, q[1] as i32);
+            (
+                ((px * c - py * s + 2048) >> 12) as isize,
+                ((px * s + py * c + 2048) >> 12) as isize,
+            )
+        };
+        let mut d = [0u64; 4];
+        for (i, q) in pattern().iter().enumerate() {
+            let (ax, ay) = rot([q[0], q[1]]);
+            let (bx, by) = rot([q[2], q[3]]);
+            let va = img.data[img.idx(x + ax, y + ay)];
+            let vb = img.data[img.idx(x + bx, y + by)];
+            d[i / 64] |= ((va < vb) as u64) << (i % 64);
+        }
+        d
+    }
+
     #[test]
-    fn avx2_descriptor_equals_portable() {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            let (w, h) = (90usize, 70usize);
-            let mut s = 21u64;
-            let data: Vec<u8> = (0..w * h)
-                .map(|_| {
-                    s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
-                    (s >> 56) as u8
-                })
-                .collect();
-            let mut img = PaddedImage::new(w, h, 24);
-            img.copy_from(&data);
-            let pts = PatternPoints::new();
-            for k in 0..200 {
-                let (x, y) = (3 + (k * 7) % (w - 6), 2 + (k * 13) % (h - 4));
-                let a = (k as f32) * 7.3 % 360.0;
-                let (x, y) = (x as isize, y as isize);
+    fn portable_and_avx2_descriptors_equal_the_bitwise_definition() {
+        let (w, h) = (90usize, 70usize);
+        let mut s = 21u64;
+        let data: Vec<u8> = (0..w * h)
+            .map(|_| {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+                (s >> 56) as u8
+            })
+            .collect();
+        let mut img = PaddedImage::new(w, h, 24);
+        img.copy_from(&data);
+        let pts = PatternPoints::new();
+        for k in 0..200 {
+            let (x, y) = (3 + (k * 7) % (w - 6), 2 + (k * 13) % (h - 4));
+            let a = (k as f32) * 7.3 % 360.0;
+            let (x, y) = (x as isize, y as isize);
+            let portable = describe(&img, &pts, x, y, a);
+            assert_eq!(portable, naive(&img, x, y, a), "({x}, {y}) at {a}");
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: AVX2 checked above.
                 let fast = unsafe { describe_avx2(&img, &pts, x, y, a) };
-                assert_eq!(fast, describe(&img, &pts, x, y, a), "({x}, {y}) at {a}");
+                assert_eq!(fast, portable, "AVX2 at ({x}, {y}) at {a}");
             }
-            return;
         }
-        eprintln!("no AVX2: portable descriptor only");
     }
 
     #[test]
