@@ -166,3 +166,84 @@ fn desk_and_posters_relocalise_within_10_frames_of_returning_to_mapped_space() {
         );
     }
 }
+
+/// Feeds frames `range` of the built-in sequence (with `black` frames replaced by black ones)
+/// through a fresh system; returns it with the index of the frame that initialised.
+fn run_with_black(black: impl Fn(usize) -> bool, frames: usize) -> (System, SyntheticSequence) {
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
+    let c = &seq.config;
+    let mut config = Config::default();
+    config.semidense.enabled = false;
+    let mut system = System::new(&c.calibration(), &config, frames, false);
+    let mut f = Frame::new(c.width, c.height);
+    for i in 0..frames {
+        seq.render_frame(i, &mut f);
+        if black(i) {
+            f.gray.fill(0);
+            f.rgb.fill(0);
+        }
+        system.process(&f.gray, Some(&f.rgb), f.timestamp, i as u64);
+    }
+    (system, seq)
+}
+
+/// The frame at which the built-in sequence initialises (no blackout).
+fn init_frame() -> usize {
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
+    let c = &seq.config;
+    let mut config = Config::default();
+    config.semidense.enabled = false;
+    let mut system = System::new(&c.calibration(), &config, 100, false);
+    let mut f = Frame::new(c.width, c.height);
+    (0..100)
+        .find(|&i| {
+            seq.render_frame(i, &mut f);
+            system
+                .process(&f.gray, Some(&f.rgb), f.timestamp, i as u64)
+                .state
+                == TrackingState::Ok
+        })
+        .expect("the built-in sequence initialises")
+}
+
+#[test]
+fn a_blackout_right_after_initialisation_keeps_the_map() {
+    let i0 = init_frame();
+    // Three black frames right after the map was made (2 keyframes).
+    let (system, seq) = run_with_black(|i| (i0 + 2..i0 + 5).contains(&i), i0 + 80);
+    assert_eq!(system.stats.resets, 0, "the young map was discarded");
+    let traj = system.trajectory();
+    let after = traj
+        .iter()
+        .filter(|p| p.timestamp > seq.ground_truth()[i0 + 5].timestamp);
+    let n_after = after.count();
+    assert!(
+        n_after >= 70,
+        "only {n_after} of 75 frames after the blackout tracked"
+    );
+    let r = ate(&seq.ground_truth(), &traj, 1e-6, true).expect("aligned");
+    let gt = seq.ground_truth();
+    let extent = (gt[0].t_wc.position() - gt[i0 + 79].t_wc.position()).norm();
+    assert!(
+        r.rmse_m < 0.02 * extent,
+        "ATE {} m over {extent} m",
+        r.rmse_m
+    );
+}
+
+#[test]
+fn a_discarded_young_map_leaves_no_pose_in_the_trajectory() {
+    let i0 = init_frame();
+    // A long blackout right after initialisation: the young map is given up.
+    let end = i0 + 2 + 60;
+    let (system, seq) = run_with_black(|i| (i0 + 2..end).contains(&i), end + 60);
+    assert_eq!(system.stats.resets, 1);
+    assert!(system.stats.poses_discarded_by_reset > 0);
+    let t_end = seq.ground_truth()[end].timestamp;
+    let traj = system.trajectory();
+    assert!(
+        traj.iter().all(|p| p.timestamp >= t_end),
+        "the trajectory mixes poses of the discarded map with the new one's"
+    );
+    assert_eq!(system.stats.tracked_frames, traj.len());
+}
