@@ -126,7 +126,7 @@ fn runs_ended_by_random_signals_leave_consistent_outputs() {
     {
         let out = out_dir(&format!("signal{k}"));
         // Real time: 60 frames take 2 s, the signal comes within them.
-        let mut child = run_cmd(&out, &["--realtime"])
+        let child = run_cmd(&out, &["--realtime"])
             .stderr(Stdio::piped())
             .spawn()
             .unwrap();

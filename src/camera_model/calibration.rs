@@ -376,7 +376,8 @@ impl Calibration {
         const STEPS: usize = 64;
         for i in 1..=STEPS {
             let r = r_corner * i as f64 / STEPS as f64;
-            if !(slope(r) > 0.0) {
+            let s = slope(r);
+            if s.is_nan() || s <= 0.0 {
                 return fail(
                     "k1",
                     format!(
