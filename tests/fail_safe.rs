@@ -286,7 +286,8 @@ fn a_closed_stderr_or_a_full_stdout_is_not_a_crash() {
             .open("/dev/full")
             .unwrap()
     };
-    let st = run_cmd(&out, &["--frames", "30"])
+    // -v: log events (map initialised, ...) are written too, not only plain messages.
+    let st = run_cmd(&out, &["--frames", "30", "-v"])
         .stderr(Stdio::from(full()))
         .status()
         .unwrap();

@@ -80,6 +80,9 @@ fn init_logging(verbose: u8) {
         .with_writer(std::io::stderr)
         .with_target(false)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        // A closed or full stderr must not panic (the default reports the failed write with
+        // eprintln!, which itself panics).
+        .log_internal_errors(false)
         .try_init();
 }
 
