@@ -501,7 +501,16 @@ fn record_from_the_fake_camera_replays_as_a_tum_folder() {
         .filter(|l| !l.starts_with('#'))
         .map(|l| l.split_whitespace().next().unwrap().parse().unwrap())
         .collect();
-    assert_eq!(stamps.len(), 12);
+    // A camera never waits: on a loaded machine the frames that come while a PNG is still
+    // being written are dropped (and counted). Every frame is saved or counted as dropped.
+    let dropped: usize = err
+        .split(" dropped because writing was behind")
+        .next()
+        .and_then(|s| s.rsplit(", ").next())
+        .and_then(|n| n.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no dropped count in: {err}"));
+    assert_eq!(stamps.len() + dropped, 12, "{err}");
+    assert!(stamps.len() >= 6, "most frames dropped: {err}");
     assert!(stamps.windows(2).all(|w| w[1] > w[0]));
     assert!(rec.join("camera.yaml").is_file());
     let out = dir.path().join("out");
@@ -513,7 +522,7 @@ fn record_from_the_fake_camera_replays_as_a_tum_folder() {
         out.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
-    assert_eq!(report(&out)["frames"], 12);
+    assert_eq!(report(&out)["frames"], stamps.len());
     // Recording into a non-empty folder is refused.
     let (ok, _, err) = sdslam(&[
         "record",
