@@ -231,7 +231,8 @@ pub const MAX_MAP_POINTS: usize = 50_000_000;
 pub const MAX_SEMIDENSE_POINTS: usize = 2_000_000_000;
 /// Worker threads for per-pixel work (more only oversubscribe the cores).
 pub const MAX_THREADS: usize = 64;
-use crate::semidense::MAX_NEIGHBOURS;
+/// Most neighbours a semi-dense keyframe is searched against (fixed-size buffers).
+pub const MAX_NEIGHBOURS: usize = 16;
 
 /// The whole configuration.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

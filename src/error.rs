@@ -25,6 +25,15 @@ pub enum Error {
     Source(#[from] SourceError),
     #[error("{path}: {message}")]
     Config { path: PathBuf, message: String },
+    /// A file whose content a typed decoder refused (a map file, a vocabulary, ...). The
+    /// decoder's own error is kept as the source (downcast it to tell the cases apart); it is
+    /// boxed because those decoders live in higher layers than this type.
+    #[error("{path}: {source}")]
+    Format {
+        path: PathBuf,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     #[error("{0}")]
     Invalid(String),
 }
@@ -34,6 +43,17 @@ impl Error {
         Error::Io {
             path: path.into(),
             source,
+        }
+    }
+
+    /// A typed decoding error of the file at `path`.
+    pub fn format(
+        path: impl Into<PathBuf>,
+        source: impl std::error::Error + Send + Sync + 'static,
+    ) -> Self {
+        Error::Format {
+            path: path.into(),
+            source: Box::new(source),
         }
     }
 }

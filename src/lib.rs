@@ -21,6 +21,8 @@ pub mod place_recognition;
 pub mod runtime;
 pub mod semidense;
 pub mod synthetic;
+pub mod threads;
+pub mod timing;
 pub mod tracking;
 
 pub use config::Config;

@@ -6,7 +6,7 @@ mod common;
 use nalgebra::Matrix3;
 use sdslam::camera::Frame;
 use sdslam::config::{OrbConfig, OrbDistribution, OrbScore};
-use sdslam::features::quality::warp_quality;
+use sdslam::eval::orb_quality::warp_quality;
 use sdslam::features::{Features, OrbExtractor};
 use sdslam::image::warp::{apply_homography, rotation_about, warp_perspective};
 use sdslam::matching::hamming;

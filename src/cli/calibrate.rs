@@ -105,8 +105,8 @@ pub fn calibrate(a: CalibrateArgs) -> Result<()> {
         estimate_k3: a.k3,
         ..CalibrateConfig::default()
     };
-    let r = calibrate::calibrate(&found, &board, w, h, &cfg)
-        .map_err(|e| Error::Invalid(format!("{}: {e}", a.input)))?;
+    let r =
+        calibrate::calibrate(&found, &board, w, h, &cfg).map_err(|e| Error::format(&a.input, e))?;
     let fps = a.fps.or(cam_fps).unwrap_or(30.0);
     let c = r.camera;
     let s = r.std_dev;

@@ -9,7 +9,7 @@ use clap::Args;
 use sdslam::camera::decode::ImageDecoderBuf;
 use sdslam::camera::Frame;
 use sdslam::config::OrbConfig;
-use sdslam::features::quality::warp_quality;
+use sdslam::eval::orb_quality::warp_quality;
 use sdslam::features::{Features, OrbExtractor};
 use sdslam::image::warp::warp_perspective;
 use sdslam::{Error, Result};

@@ -165,10 +165,10 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         let bytes = sdslam_camera::capped::read_capped(path, sdslam_camera::capped::BULK_CAP)
             .map_err(|e| sdslam::Error::io(path, e))?;
         let snap = sdslam::map::persist::MapSnapshot::decode(&bytes)
-            .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", path.display())))?;
+            .map_err(|e| sdslam::Error::format(path, e))?;
         let n = system
             .load_map(&snap)
-            .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", path.display())))?;
+            .map_err(|e| sdslam::Error::format(path, e))?;
         note!(
             "sdslam: loaded map {} ({n} keyframes, {} points)",
             path.display(),
@@ -371,7 +371,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             let bytes = system
                 .save_map()
                 .encode()
-                .map_err(|e| sdslam::Error::Invalid(format!("{}: {e}", p.display())))?;
+                .map_err(|e| sdslam::Error::format(p, e))?;
             io::write_atomic(p, &bytes)?;
             note!(
                 "sdslam: map saved to {} ({} kB)",

@@ -7,8 +7,8 @@
 use serde::Serialize;
 
 use crate::camera_model::PinholeRadtan;
+use crate::geometry::CloudPoint;
 use crate::geometry::{Sim3, WorldFromCamera};
-use crate::io::CloudPoint;
 
 /// A ground-truth depth map (metres along the optical axis, 0 = none) and its camera pose.
 pub struct DepthFrame {

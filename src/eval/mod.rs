@@ -3,6 +3,7 @@
 
 mod ate;
 mod cloud;
+pub mod orb_quality;
 mod rpe;
 
 pub use crate::geometry::umeyama;

@@ -12,7 +12,6 @@ mod fast_avx2;
 pub mod harris;
 mod helper;
 pub mod orientation;
-pub mod quality;
 mod spread;
 
 pub use brief::Descriptor;

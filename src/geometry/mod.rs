@@ -2,6 +2,7 @@
 //! initialisation (H/F), triangulation, PnP, Sim3, epipolar helpers, seeded RANSAC.
 
 mod align;
+mod cloud;
 pub mod epipolar;
 pub mod pnp;
 mod pose;
@@ -11,4 +12,5 @@ pub mod triangulate;
 pub mod two_view;
 
 pub use align::{horn, umeyama};
+pub use cloud::CloudPoint;
 pub use pose::{CameraFromWorld, Se3, Sim3, WorldFromCamera};

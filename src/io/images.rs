@@ -57,8 +57,7 @@ use image::ImageEncoder;
 pub fn read_depth_png(path: &Path, factor: f32) -> Result<(u32, u32, Vec<f32>)> {
     let bytes = sdslam_camera::capped::read_capped(path, sdslam_camera::capped::BULK_CAP)
         .map_err(|e| Error::io(path, e))?;
-    let img = image::load_from_memory(&bytes)
-        .map_err(|e| Error::Invalid(format!("{}: cannot read depth image: {e}", path.display())))?;
+    let img = image::load_from_memory(&bytes).map_err(|e| Error::format(path, e))?;
     let (w, h) = (img.width(), img.height());
     let px = img.into_luma16();
     Ok((w, h, px.pixels().map(|p| p.0[0] as f32 / factor).collect()))

@@ -87,9 +87,7 @@ pub fn load_vocabulary(path: &Path) -> Result<crate::place_recognition::Vocabula
     }
     let bytes = sdslam_camera::capped::read_capped(path, sdslam_camera::capped::BULK_CAP)
         .map_err(|e| Error::io(path, e))?;
-    let named = |e: crate::place_recognition::VocabularyFormatError| {
-        Error::Invalid(format!("{}: {e}", path.display()))
-    };
+    let named = |e: crate::place_recognition::VocabularyFormatError| Error::format(path, e);
     if bytes.starts_with(b"SDSLVOC") {
         return crate::place_recognition::decode_vocabulary(&bytes).map_err(named);
     }

@@ -5,14 +5,7 @@ use std::path::Path;
 
 use crate::error::{Error, Result};
 
-/// One cloud point as written to `semidense.ply`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CloudPoint {
-    pub position: [f32; 3],
-    pub rgb: [u8; 3],
-    pub sigma: f32,
-    pub timestamp: f64,
-}
+pub use crate::geometry::CloudPoint;
 
 const HEADER_PROPS: &str = "property float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nproperty float sigma\nproperty double timestamp\n";
 

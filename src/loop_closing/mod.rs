@@ -31,7 +31,7 @@ use crate::map::{KeyFrameId, Map, MapPointId};
 use crate::matching::hamming;
 use crate::optimize::lie::sim3_compose;
 use crate::optimize::{PoseGraph, PoseGraphEdge};
-use crate::place_recognition::{l1_score, BowVector, KeyFrameDatabase};
+use crate::place_recognition::{l1_score, BowVector};
 
 /// Published parameters (ORB-SLAM's loop closing).
 #[derive(Clone, Debug)]
@@ -65,13 +65,7 @@ impl Default for LoopClosingConfig {
     }
 }
 
-/// The place-recognition index shared by tracking (adds keyframes, relocalises) and loop
-/// closing: the database keyed by keyframe serial, and serial -> keyframe.
-#[derive(Default)]
-pub struct PlaceIndex {
-    pub database: KeyFrameDatabase,
-    pub keys: HashMap<u32, KeyFrameId>,
-}
+pub use crate::place_recognition::PlaceIndex;
 
 /// How a loop was found.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -6,12 +6,14 @@
 mod database;
 mod dbow2;
 mod format;
+mod index;
 mod train;
 mod vocabulary;
 
 pub use database::KeyFrameDatabase;
 pub use dbow2::parse_dbow2_text;
 pub use format::{decode_vocabulary, encode_vocabulary, VocabularyFormatError, FORMAT_VERSION};
+pub use index::PlaceIndex;
 pub use train::{train, TrainConfig};
 pub use vocabulary::{l1_score, BowVector, FeatureVector, Node, Vocabulary};
 

@@ -257,7 +257,7 @@ impl System {
     }
 
     pub fn state(&self) -> TrackingState {
-        self.tracker.state
+        self.tracker.state()
     }
 
     /// Keyframes and map points in the map now.
@@ -368,7 +368,7 @@ impl System {
     }
 
     /// The semi-dense cloud in world coordinates with the current keyframe poses.
-    pub fn semidense_cloud(&self) -> Vec<crate::io::CloudPoint> {
+    pub fn semidense_cloud(&self) -> Vec<crate::geometry::CloudPoint> {
         let mut out = Vec::new();
         if let Some(m) = self.semidense.mapper() {
             m.cloud(&lock(&self.map), &mut out);
@@ -406,10 +406,10 @@ impl System {
         self.stats.map_lock_wait.record(lock_time);
         let map = &mut *map_guard;
         let mut new_keyframe = false;
-        let state = if self.tracker.state == TrackingState::NotInitialised {
+        let state = if self.tracker.state() == TrackingState::NotInitialised {
             self.initialize(map, gray, rgb)
         } else {
-            let st = if self.tracker.state == TrackingState::Lost {
+            let st = if self.tracker.state() == TrackingState::Lost {
                 self.relocalise(map)
             } else {
                 self.tracker.track(map, &mut self.frame)
@@ -438,7 +438,7 @@ impl System {
             } else if st == TrackingState::Ok {
                 self.young_map_lost_frames = 0;
             }
-            self.tracker.state
+            self.tracker.state()
         };
         let total = t0.elapsed();
         if !new_keyframe {
@@ -459,7 +459,7 @@ impl System {
         if state == TrackingState::Ok {
             self.stats.tracked_frames += 1;
             let f = &self.frame;
-            let reference = self.tracker.reference_kf;
+            let reference = self.tracker.reference_kf();
             let t_c_ref = reference
                 .and_then(|r| map.keyframe(r))
                 .map(|k| f.t_cw.0 * k.t_cw.0.inverse())
@@ -472,7 +472,7 @@ impl System {
             });
             t_wc = Some(f.t_cw.inverse());
         }
-        self.tracker.last.copy_from(&self.frame);
+        self.tracker.commit(&self.frame);
         drop(map_guard);
         // Semi-dense mapping hears of keyframes without the map locked (it locks briefly).
         for kf in std::mem::take(&mut self.fresh_keyframes) {
@@ -532,10 +532,7 @@ impl System {
             places.keys.clear();
         }
         self.semidense.reset();
-        self.tracker.state = TrackingState::NotInitialised;
-        self.tracker.reference_kf = None;
-        self.tracker.reference_pose = None;
-        self.tracker.velocity = None;
+        self.tracker.reset(TrackingState::NotInitialised);
         self.init.reset();
         self.stats.resets += 1;
         // The poses so far are in the discarded map's world frame (every reset discards the
@@ -619,8 +616,7 @@ impl System {
                 *p = None;
             }
         }
-        self.tracker.reference_kf = Some(kf);
-        self.tracker.last_keyframe_frame = self.frame.index;
+        self.tracker.keyframe_made(kf, self.frame.index);
         self.stats.keyframes_created += 1;
         let _ = self.fresh_keyframes.push(kf);
         true

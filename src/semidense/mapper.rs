@@ -14,10 +14,10 @@ use super::{
     RegionalPrior, MAX_NEIGHBOURS,
 };
 use crate::config::SemiDenseConfig;
+use crate::geometry::CloudPoint;
 use crate::geometry::{CameraFromWorld, Se3};
-use crate::io::CloudPoint;
 use crate::map::{KeyFrameId, Map, MapPointId};
-use crate::runtime::StageTimer;
+use crate::timing::StageTimer;
 
 /// A reconstructed keyframe: its pixels live in the mapper's arena at `start..start + len`.
 #[derive(Clone, Debug)]
@@ -166,7 +166,7 @@ impl SemiDenseMapper {
     /// Reserves everything for `width` x `height` keyframes, `max_keyframes` reconstructed
     /// keyframes and `max_points` stored pixels.
     /// Online: the per-pixel work steps aside while tracking works on a frame.
-    pub fn set_foreground_gate(&mut self, gate: crate::runtime::ForegroundGate) {
+    pub fn set_foreground_gate(&mut self, gate: crate::threads::ForegroundGate) {
         self.reconstructor.set_foreground_gate(gate);
     }
 

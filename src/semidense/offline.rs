@@ -9,8 +9,8 @@ use std::sync::Mutex;
 use crate::camera_model::PinholeRadtan;
 use crate::config::Config;
 use crate::features::{Features, OrbExtractor};
+use crate::geometry::CloudPoint;
 use crate::geometry::WorldFromCamera;
-use crate::io::CloudPoint;
 use crate::local_mapping::LocalMapper;
 use crate::map::{KeyFrameId, Map, MapConfig};
 

@@ -17,7 +17,7 @@ use crate::config::SemiDenseConfig;
 use crate::geometry::Se3;
 
 /// Most neighbours a keyframe is searched in (the paper uses N = 7).
-pub const MAX_NEIGHBOURS: usize = 16;
+pub use crate::config::MAX_NEIGHBOURS;
 
 /// Time spent in each stage of one keyframe.
 #[derive(Clone, Copy, Debug, Default)]
@@ -59,7 +59,7 @@ pub struct KeyframeReconstructor {
     s2: Vec<f32>,
     pool: Option<rayon::ThreadPool>,
     /// Set online: rows wait while tracking works on a frame.
-    gate: Option<crate::runtime::ForegroundGate>,
+    gate: Option<crate::threads::ForegroundGate>,
 }
 
 impl KeyframeReconstructor {
@@ -75,11 +75,11 @@ impl KeyframeReconstructor {
                         let (nice, idle, cpus) =
                             (config.nice, config.sched_idle, config.cpus.clone());
                         move |_| {
-                            crate::runtime::lower_current_thread_priority(nice);
+                            crate::threads::lower_current_thread_priority(nice);
                             if idle {
-                                crate::runtime::set_current_thread_idle();
+                                crate::threads::set_current_thread_idle();
                             }
-                            crate::runtime::pin_current_thread(&cpus);
+                            crate::threads::pin_current_thread(&cpus);
                         }
                     })
                     .build()
@@ -217,7 +217,7 @@ impl KeyframeReconstructor {
     }
 
     /// Rows wait (between rows) while `gate` says tracking is busy.
-    pub fn set_foreground_gate(&mut self, gate: crate::runtime::ForegroundGate) {
+    pub fn set_foreground_gate(&mut self, gate: crate::threads::ForegroundGate) {
         self.gate = Some(gate);
     }
 
@@ -326,7 +326,7 @@ impl KeyframeReconstructor {
 /// each row first waits for `gate` (tracking busy).
 fn run_rows<F>(
     pool: Option<&rayon::ThreadPool>,
-    gate: Option<&crate::runtime::ForegroundGate>,
+    gate: Option<&crate::threads::ForegroundGate>,
     a: &mut [f32],
     b: &mut [f32],
     w: usize,
@@ -381,7 +381,7 @@ impl DepthContext<'_> {
         h: usize,
         out_rho: &mut [f32],
         out_s2: &mut [f32],
-        gate: Option<&crate::runtime::ForegroundGate>,
+        gate: Option<&crate::threads::ForegroundGate>,
     ) {
         out_rho.fill(0.0);
         out_s2.fill(0.0);

@@ -63,30 +63,33 @@ impl Default for TrackingConfig {
     }
 }
 
-/// Tracks frames against the map.
+/// Tracks frames against the map. Owns its state machine (NotInitialised -> Ok <-> Lost):
+/// the state and what the motion model carries between frames change only through its
+/// methods ([`start`](Self::start), [`reset`](Self::reset), [`keyframe_made`](Self::keyframe_made),
+/// [`commit`](Self::commit), tracking and relocalisation).
 pub struct Tracker {
     pub config: TrackingConfig,
-    pub state: TrackingState,
+    state: TrackingState,
     pub camera: PinholeRadtan,
     pub motion_ba: MotionOnlyBa,
     pub scales: Vec<f64>,
     pub inv_sigma2: Vec<f64>,
     /// Last tracked frame's pose and matched points (the motion model's source).
-    pub last: TrackedFrame,
-    pub velocity: Option<Se3>,
-    pub reference_kf: Option<KeyFrameId>,
+    last: TrackedFrame,
+    velocity: Option<Se3>,
+    reference_kf: Option<KeyFrameId>,
     /// The reference keyframe's pose when the last frame was tracked: if the map moves it
     /// (local BA, loop correction), the last pose is re-based on it before predicting.
-    pub reference_pose: Option<(KeyFrameId, CameraFromWorld)>,
-    pub last_keyframe_frame: u64,
+    reference_pose: Option<(KeyFrameId, CameraFromWorld)>,
+    last_keyframe_frame: u64,
     pub lost_episodes: usize,
     /// Successful relocalisations.
     pub relocalisations: usize,
     /// Stage timers: pose prediction and matching (motion model, or the reference keyframe,
     /// with pose optimisation), local-map tracking, relocalisation attempts.
-    pub t_prediction: crate::runtime::StageTimer,
-    pub t_local_map: crate::runtime::StageTimer,
-    pub t_relocalisation: crate::runtime::StageTimer,
+    pub t_prediction: crate::timing::StageTimer,
+    pub t_local_map: crate::timing::StageTimer,
+    pub t_relocalisation: crate::timing::StageTimer,
     projected: Vec<ProjectedPoint>,
     proj_ids: Vec<crate::map::MapPointId>,
     /// Per projected point: its keypoint index in the last frame (rotation check).
@@ -104,6 +107,44 @@ pub struct Tracker {
 }
 
 impl Tracker {
+    pub fn state(&self) -> TrackingState {
+        self.state
+    }
+
+    /// The keyframe the current pose is expressed against (the trajectory's anchor).
+    pub fn reference_kf(&self) -> Option<KeyFrameId> {
+        self.reference_kf
+    }
+
+    /// The map was just initialised: tracking continues from keyframe `reference`, which
+    /// frame `frame_index` made.
+    pub fn start(&mut self, reference: KeyFrameId, frame_index: u64) {
+        self.reset(TrackingState::Ok);
+        self.reference_kf = Some(reference);
+        self.last_keyframe_frame = frame_index;
+    }
+
+    /// The one way back to a state without a reference: `NotInitialised` (the map was
+    /// discarded) or `Lost` (a map was loaded: relocalise in it). Forgets the reference,
+    /// its pose and the motion model.
+    pub fn reset(&mut self, state: TrackingState) {
+        self.state = state;
+        self.reference_kf = None;
+        self.reference_pose = None;
+        self.velocity = None;
+    }
+
+    /// Frame `frame_index` became keyframe `kf`: the new reference.
+    pub fn keyframe_made(&mut self, kf: KeyFrameId, frame_index: u64) {
+        self.reference_kf = Some(kf);
+        self.last_keyframe_frame = frame_index;
+    }
+
+    /// The frame is done: it becomes the last frame the motion model predicts from.
+    pub fn commit(&mut self, frame: &TrackedFrame) {
+        self.last.copy_from(frame);
+    }
+
     pub fn new(camera: PinholeRadtan, scales: Vec<f64>, max_features: usize) -> Self {
         let (w, h) = (camera.width as usize, camera.height as usize);
         let inv_sigma2 = scales.iter().map(|s| 1.0 / (s * s)).collect();
@@ -121,9 +162,9 @@ impl Tracker {
             last_keyframe_frame: 0,
             lost_episodes: 0,
             relocalisations: 0,
-            t_prediction: crate::runtime::StageTimer::with_capacity(4096),
-            t_local_map: crate::runtime::StageTimer::with_capacity(4096),
-            t_relocalisation: crate::runtime::StageTimer::with_capacity(1024),
+            t_prediction: crate::timing::StageTimer::with_capacity(4096),
+            t_local_map: crate::timing::StageTimer::with_capacity(4096),
+            t_relocalisation: crate::timing::StageTimer::with_capacity(1024),
             projected: Vec::with_capacity(max_features * 8),
             proj_ids: Vec::with_capacity(max_features * 8),
             proj_kp: Vec::with_capacity(max_features),

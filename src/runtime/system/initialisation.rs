@@ -108,10 +108,7 @@ impl System {
             self.frame.t_cw = t;
             self.frame.points.copy_from_slice(&pts);
         }
-        self.tracker.reference_kf = Some(kf1);
-        self.tracker.last_keyframe_frame = self.frame.index;
-        self.tracker.velocity = None;
-        self.tracker.state = TrackingState::Ok;
+        self.tracker.start(kf1, self.frame.index);
         tracing::info!(
             frame = self.frame.index,
             points = map.n_points(),

@@ -74,9 +74,7 @@ impl System {
         for &kf in &ids {
             self.index_keyframe(&map, kf);
         }
-        self.tracker.state = TrackingState::Lost;
-        self.tracker.reference_kf = None;
-        self.tracker.velocity = None;
+        self.tracker.reset(TrackingState::Lost);
         Ok(ids.len())
     }
 }

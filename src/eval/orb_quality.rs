@@ -3,7 +3,7 @@
 
 use nalgebra::Matrix3;
 
-use super::{Features, KeyPoint};
+use crate::features::{Features, KeyPoint};
 use crate::image::warp::apply_homography;
 use crate::matching::hamming;
 
