@@ -885,3 +885,20 @@ fn run_pictures_rpe_and_html_report() {
     assert!(ok, "{err}");
     assert!(!d.path().join("np/trajectory.png").exists());
 }
+
+/// `config --defaults` prints a tree that `config --check` and `run --config` accept, and a
+/// bad value in any section is refused naming it.
+#[test]
+fn printed_defaults_are_a_valid_configuration() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, text, err) = sdslam(&["config", "--defaults"]);
+    assert!(ok, "{err}");
+    let p = dir.path().join("all.toml");
+    std::fs::write(&p, &text).unwrap();
+    let (ok, out, err) = sdslam(&["config", "--check", p.to_str().unwrap()]);
+    assert!(ok && out.contains("valid"), "{err}");
+    let bad = text.replace("min_inliers = 30", "min_inliers = 0");
+    std::fs::write(&p, bad).unwrap();
+    let (ok, _, err) = sdslam(&["config", "--check", p.to_str().unwrap()]);
+    assert!(!ok && err.contains("tracking.min_inliers"), "{err}");
+}

@@ -22,6 +22,7 @@ macro_rules! out {
 mod bench;
 mod calibrate;
 mod cameras;
+mod config_cmd;
 mod densify;
 mod eval;
 mod features;
@@ -109,6 +110,8 @@ enum Command {
     Vocab(vocab::VocabCommand),
     /// Time ORB extraction on images (one thread): median time and feature count.
     Features(features::FeaturesArgs),
+    /// Print every setting with its default (`--defaults`), or check a file (`--check FILE`).
+    Config(config_cmd::ConfigArgs),
     /// Render the built-in synthetic sequence to a TUM RGB-D folder (images, depth, ground truth).
     Synth(synth::SynthArgs),
 }
@@ -128,6 +131,7 @@ pub fn dispatch(cli: Cli) -> Result<()> {
         Some(Command::Synth(a)) => synth::synth(a),
         Some(Command::Features(a)) => features::features(a),
         Some(Command::Vocab(v)) => vocab::vocab(v),
+        Some(Command::Config(a)) => config_cmd::config(a),
     }
 }
 

@@ -355,7 +355,8 @@ pub fn refine_pose(
 }
 
 /// Parameters of [`pnp_ransac`] (ORB-SLAM's relocalisation values).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct PnpRansacConfig {
     pub probability: f64,
     pub min_inliers: usize,

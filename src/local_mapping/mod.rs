@@ -15,32 +15,7 @@ use crate::map::{KeyFrameId, Map, MapPointId};
 use crate::matching::search::search_for_triangulation;
 use crate::optimize::{BaObservation, BaOptions, BaProblem, BundleAdjuster};
 
-/// Published local-mapping parameters.
-#[derive(Clone, Debug)]
-pub struct LocalMappingConfig {
-    /// Covisible keyframes used for triangulation (ORB-SLAM monocular: 20).
-    pub triangulation_neighbours: usize,
-    /// Culling: minimum found/visible ratio, and observations needed after 2 keyframes.
-    pub min_found_ratio: f64,
-    pub min_observations: usize,
-    /// Keyframe culling: share of redundant points.
-    pub redundancy: f64,
-    pub ba_iterations_robust: usize,
-    pub ba_iterations: usize,
-}
-
-impl Default for LocalMappingConfig {
-    fn default() -> Self {
-        LocalMappingConfig {
-            triangulation_neighbours: 20,
-            min_found_ratio: 0.25,
-            min_observations: 2,
-            redundancy: 0.9,
-            ba_iterations_robust: 5,
-            ba_iterations: 10,
-        }
-    }
-}
+pub use crate::config::LocalMappingConfig;
 
 /// Runs a step of local mapping with the map (locked for the step, in threaded mode).
 pub type MapAccess<'a> = dyn FnMut(&mut dyn FnMut(&mut Map)) + 'a;

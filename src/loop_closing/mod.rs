@@ -33,37 +33,7 @@ use crate::optimize::lie::sim3_compose;
 use crate::optimize::{PoseGraph, PoseGraphEdge};
 use crate::place_recognition::{l1_score, BowVector};
 
-/// Published parameters (ORB-SLAM's loop closing).
-#[derive(Clone, Debug)]
-pub struct LoopClosingConfig {
-    /// Consecutive keyframes whose candidates must be consistent.
-    pub covisibility_consistency: usize,
-    /// Keyframes since the last loop (and in the map) before detecting a new one.
-    pub min_keyframes_between_loops: usize,
-    /// Map-point matches needed after the projection search.
-    pub min_matches: usize,
-    /// Pose-graph iterations and covisibility weight of essential-graph edges.
-    pub pose_graph_iterations: usize,
-    /// Revisits (loops tracking has already joined): the path travelled from the old keyframe
-    /// must be at least this many times the distance between the two camera centres...
-    pub revisit_path_ratio: f64,
-    /// ...and at least this many times the new keyframe's median scene depth (so that drift
-    /// can have built up along it).
-    pub revisit_min_path_depths: f64,
-}
-
-impl Default for LoopClosingConfig {
-    fn default() -> Self {
-        LoopClosingConfig {
-            covisibility_consistency: 3,
-            min_keyframes_between_loops: 10,
-            min_matches: 40,
-            pose_graph_iterations: 20,
-            revisit_path_ratio: 5.0,
-            revisit_min_path_depths: 2.0,
-        }
-    }
-}
+pub use crate::config::LoopClosingConfig;
 
 pub use crate::place_recognition::PlaceIndex;
 

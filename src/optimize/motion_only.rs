@@ -9,27 +9,7 @@ use super::lie::{point_pose_jacobian, projection_jacobian, se3_retract};
 use super::robust::{huber_cost, huber_weight};
 use crate::geometry::CameraFromWorld;
 
-/// Parameters (ORB-SLAM's values).
-#[derive(Clone, Debug)]
-pub struct MotionOnlyConfig {
-    pub rounds: usize,
-    pub iterations: usize,
-    /// chi² gate (2 DoF, 95%) for inlier classification and the Huber threshold.
-    pub chi2: f64,
-    /// Rounds from which the robust kernel is off.
-    pub robust_rounds: usize,
-}
-
-impl Default for MotionOnlyConfig {
-    fn default() -> Self {
-        MotionOnlyConfig {
-            rounds: 4,
-            iterations: 10,
-            chi2: 5.991,
-            robust_rounds: 2,
-        }
-    }
-}
+pub use crate::config::MotionOnlyConfig;
 
 /// Motion-only BA with the camera intrinsics of the undistorted pinhole.
 #[derive(Clone, Debug)]

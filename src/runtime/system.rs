@@ -36,7 +36,7 @@ mod reserved;
 pub use reserved::ReservedMemory;
 
 use backfill::{Backfill, BACKFILL_PER_FRAME};
-use mapping_thread::{spawn_mapper, Mapping};
+use mapping_thread::{spawn_mapper, MapperSetup, Mapping};
 
 /// Frames slower than this are logged (debug) with their stage times.
 const SLOW_FRAME: std::time::Duration = std::time::Duration::from_millis(20);
@@ -163,23 +163,25 @@ impl System {
         }));
         let gate = ForegroundGate::default();
         let map_wanted = ForegroundGate::default();
+        let setup = MapperSetup {
+            camera,
+            scales: scales.clone(),
+            local_mapping: config.local_mapping.clone(),
+            loop_closing: config.loop_closing.clone(),
+            global_ba_after_loop: config.map.global_ba_after_loop,
+        };
         let mapping = if threaded {
             spawn_mapper(
-                camera,
-                &scales,
+                &setup,
                 Arc::clone(&map),
                 expected_frames,
                 config.runtime.mapping_cpus.clone(),
                 Arc::clone(&places),
-                config.map.global_ba_after_loop,
                 gate.clone(),
                 map_wanted.clone(),
             )
         } else {
-            Mapping::Inline(Box::new((
-                LocalMapper::new(camera, &scales),
-                LoopCloser::new(camera, &scales),
-            )))
+            Mapping::Inline(Box::new((setup.local_mapper(), setup.loop_closer())))
         };
         let semidense = if config.semidense.enabled {
             let k = Intrinsics {
@@ -216,7 +218,11 @@ impl System {
         System {
             vocabulary,
             places,
-            tracker: Tracker::new(camera, scales.clone(), max_features),
+            tracker: Tracker::new(camera, scales.clone(), max_features).with_config(
+                config.tracking.clone(),
+                config.motion_only.clone(),
+                config.relocalisation.clone(),
+            ),
             mapping,
             semidense,
             fresh_keyframes: heapless::Vec::new(),
@@ -226,7 +232,7 @@ impl System {
             localize_only: false,
             global_ba_after_loop: config.map.global_ba_after_loop,
             finished: false,
-            init: Initializer::new(max_features, w, h),
+            init: Initializer::new(max_features, w, h).with_config(config.initialisation.clone()),
             backfill: Backfill::default(),
             frame: TrackedFrame::new(max_features, w, h),
             trajectory: Vec::with_capacity(expected_frames),

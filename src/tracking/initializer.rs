@@ -87,6 +87,12 @@ impl Initializer {
         }
     }
 
+    /// Two-view parameters in force (ORB-SLAM's by default).
+    pub fn with_config(mut self, config: TwoViewConfig) -> Self {
+        self.config = config;
+        self
+    }
+
     /// Frames kept since the reference, oldest first.
     pub fn pending(&self) -> &[PendingFrame] {
         &self.pending[..self.pending_len]

@@ -28,40 +28,7 @@ pub enum TrackingState {
     Lost,
 }
 
-/// Published tracking parameters (ORB-SLAM's values).
-#[derive(Clone, Debug)]
-pub struct TrackingConfig {
-    /// Search radius (pixels at level 0) of the motion-model projection; doubled on failure.
-    pub motion_search_radius: f32,
-    /// Matches needed after the motion-model search before optimising.
-    pub min_motion_matches: usize,
-    /// Inliers for tracking to succeed.
-    pub min_inliers: usize,
-    /// New keyframe when tracked points fall below this share of the reference's.
-    pub keyframe_ratio: f64,
-    /// Frames between keyframes at most (fps) and at least.
-    pub max_frames_between_keyframes: u64,
-    pub min_frames_between_keyframes: u64,
-    /// Local keyframes considered at most.
-    pub max_local_keyframes: usize,
-    /// Viewing angle limit for local-map points: cos(60 deg).
-    pub min_view_cos: f64,
-}
-
-impl Default for TrackingConfig {
-    fn default() -> Self {
-        TrackingConfig {
-            motion_search_radius: 15.0,
-            min_motion_matches: 20,
-            min_inliers: 30,
-            keyframe_ratio: 0.9,
-            max_frames_between_keyframes: 30,
-            min_frames_between_keyframes: 0,
-            max_local_keyframes: 80,
-            min_view_cos: 0.5,
-        }
-    }
-}
+pub use crate::config::TrackingConfig;
 
 /// Tracks frames against the map. Owns its state machine (NotInitialised -> Ok <-> Lost):
 /// the state and what the motion model carries between frames change only through its
@@ -69,6 +36,8 @@ impl Default for TrackingConfig {
 /// [`commit`](Self::commit), tracking and relocalisation).
 pub struct Tracker {
     pub config: TrackingConfig,
+    /// EPnP + RANSAC of relocalisation.
+    relocalisation: crate::geometry::pnp::PnpRansacConfig,
     state: TrackingState,
     pub camera: PinholeRadtan,
     pub motion_ba: MotionOnlyBa,
@@ -145,11 +114,25 @@ impl Tracker {
         self.last.copy_from(frame);
     }
 
+    /// The published parameters in force (ORB-SLAM's by default).
+    pub fn with_config(
+        mut self,
+        tracking: TrackingConfig,
+        motion_only: crate::config::MotionOnlyConfig,
+        relocalisation: crate::geometry::pnp::PnpRansacConfig,
+    ) -> Self {
+        self.config = tracking;
+        self.motion_ba.config = motion_only;
+        self.relocalisation = relocalisation;
+        self
+    }
+
     pub fn new(camera: PinholeRadtan, scales: Vec<f64>, max_features: usize) -> Self {
         let (w, h) = (camera.width as usize, camera.height as usize);
         let inv_sigma2 = scales.iter().map(|s| 1.0 / (s * s)).collect();
         Tracker {
             config: TrackingConfig::default(),
+            relocalisation: Default::default(),
             state: TrackingState::NotInitialised,
             motion_ba: MotionOnlyBa::new(camera.fx, camera.fy, camera.cx, camera.cy),
             camera,
@@ -337,7 +320,7 @@ impl Tracker {
         candidates: &[KeyFrameId],
     ) -> TrackingState {
         let k = self.camera.k();
-        let cfg = crate::geometry::pnp::PnpRansacConfig::default();
+        let cfg = self.relocalisation.clone();
         for &c in candidates {
             f.reset_matches();
             let n = self.match_keyframe(map, c, f, 0.75);

@@ -19,7 +19,8 @@ use reconstruct::{reconstruct_f, reconstruct_h};
 pub use models::{fundamental_8point, homography_dlt};
 
 /// Parameters (ORB-SLAM's defaults).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct TwoViewConfig {
     pub ransac_iterations: usize,
     /// Standard deviation of keypoint positions, pixels.

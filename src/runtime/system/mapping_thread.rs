@@ -64,39 +64,52 @@ impl Mapping {
     }
 }
 
+/// What local mapping and loop closing are built from (the same for the inline and the
+/// threaded mode).
+pub(super) struct MapperSetup {
+    pub camera: PinholeRadtan,
+    pub scales: Vec<f64>,
+    pub local_mapping: crate::config::LocalMappingConfig,
+    pub loop_closing: crate::config::LoopClosingConfig,
+    pub global_ba_after_loop: bool,
+}
+
+impl MapperSetup {
+    pub fn local_mapper(&self) -> LocalMapper {
+        let mut m = LocalMapper::new(self.camera, &self.scales);
+        m.config = self.local_mapping.clone();
+        m
+    }
+
+    pub fn loop_closer(&self) -> LoopCloser {
+        let mut c = LoopCloser::new(self.camera, &self.scales);
+        c.config = self.loop_closing.clone();
+        c
+    }
+}
+
 /// Starts the local-mapping thread: per keyframe, prepare in short steps under the lock (none
 /// started while tracking waits for it, or, paced in real time, while a frame is tracked), BA
 /// without it, write back under the lock, then pass the keyframe to loop closing. Exits when the channel closes
 /// (after draining it), hanging up on the loop-closing thread.
-#[allow(clippy::too_many_arguments)]
 pub(super) fn spawn_mapper(
-    camera: PinholeRadtan,
-    scales: &[f64],
+    setup: &MapperSetup,
     map: Arc<Mutex<Map>>,
     expected: usize,
     cpus: Vec<usize>,
     places: Arc<Mutex<PlaceIndex>>,
-    global_ba_after_loop: bool,
     gate: crate::runtime::ForegroundGate,
     map_wanted: crate::runtime::ForegroundGate,
 ) -> Mapping {
-    let mut mapper = LocalMapper::new(camera, scales);
+    let mut mapper = setup.local_mapper();
     let (tx, rx) = bounded::<KeyFrameId>(8);
-    let (loop_tx, closer) = match spawn_loop_closer(
-        camera,
-        scales,
-        Arc::clone(&map),
-        cpus.clone(),
-        Arc::clone(&places),
-        global_ba_after_loop,
-    ) {
-        Some((t, h)) => (Some(t), Some(h)),
-        None => (None, None),
-    };
+    let (loop_tx, closer) =
+        match spawn_loop_closer(setup, Arc::clone(&map), cpus.clone(), Arc::clone(&places)) {
+            Some((t, h)) => (Some(t), Some(h)),
+            None => (None, None),
+        };
     // Without a loop-closing thread, the mapping thread closes loops itself.
-    let mut own = loop_tx
-        .is_none()
-        .then(|| LoopWorker::new(camera, scales, global_ba_after_loop));
+    let mut own = loop_tx.is_none().then(|| LoopWorker::new(setup));
     let idle = Arc::new(AtomicBool::new(true));
     let idle_t = Arc::clone(&idle);
     let map_t = Arc::clone(&map);
@@ -154,24 +167,19 @@ pub(super) fn spawn_mapper(
             idle,
         },
         // No thread could be started: fall back to inline mapping (still correct).
-        None => Mapping::Inline(Box::new((
-            LocalMapper::new(camera, scales),
-            LoopCloser::new(camera, scales),
-        ))),
+        None => Mapping::Inline(Box::new((setup.local_mapper(), setup.loop_closer()))),
     }
 }
 
 /// The loop-closing thread: detection (and correction) per mapped keyframe, then, after a
 /// loop, a full BA on a background thread of its own.
 fn spawn_loop_closer(
-    camera: PinholeRadtan,
-    scales: &[f64],
+    setup: &MapperSetup,
     map: Arc<Mutex<Map>>,
     cpus: Vec<usize>,
     places: Arc<Mutex<PlaceIndex>>,
-    global_ba_after_loop: bool,
 ) -> Option<(Sender<KeyFrameId>, JoinHandle<LoopStats>)> {
-    let mut worker = LoopWorker::new(camera, scales, global_ba_after_loop);
+    let mut worker = LoopWorker::new(setup);
     let (tx, rx) = bounded::<KeyFrameId>(8);
     let handle = std::thread::Builder::new()
         .name("loop-closing".into())
@@ -200,12 +208,12 @@ struct LoopWorker {
 }
 
 impl LoopWorker {
-    fn new(camera: PinholeRadtan, scales: &[f64], global_ba_after_loop: bool) -> Self {
+    fn new(setup: &MapperSetup) -> Self {
         LoopWorker {
-            closer: LoopCloser::new(camera, scales),
-            camera,
-            scales: scales.to_vec(),
-            global_ba_after_loop,
+            closer: setup.loop_closer(),
+            camera: setup.camera,
+            scales: setup.scales.clone(),
+            global_ba_after_loop: setup.global_ba_after_loop,
             timer: StageTimer::with_capacity(64),
             gba: None,
         }

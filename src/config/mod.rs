@@ -7,6 +7,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
+mod pipeline;
+
+pub use crate::geometry::pnp::PnpRansacConfig;
+pub use crate::geometry::two_view::TwoViewConfig;
+pub use pipeline::{LocalMappingConfig, LoopClosingConfig, MotionOnlyConfig, TrackingConfig};
+
 /// ORB extraction (Rublee et al. 2011; ORB-SLAM's defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -229,6 +235,8 @@ pub const MAX_FEATURES: usize = 100_000;
 pub const MAX_KEYFRAMES: usize = 100_000;
 pub const MAX_MAP_POINTS: usize = 50_000_000;
 pub const MAX_SEMIDENSE_POINTS: usize = 2_000_000_000;
+/// Largest count of iterations, rounds, neighbours or matches a stage accepts.
+pub const MAX_ITERATIONS: usize = 100_000;
 /// Worker threads for per-pixel work (more only oversubscribe the cores).
 pub const MAX_THREADS: usize = 64;
 /// Most neighbours a semi-dense keyframe is searched against (fixed-size buffers).
@@ -239,6 +247,15 @@ pub const MAX_NEIGHBOURS: usize = 16;
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
     pub orb: OrbConfig,
+    /// Two-view initialisation (H and F by RANSAC, model selection, parallax).
+    pub initialisation: TwoViewConfig,
+    pub tracking: TrackingConfig,
+    /// Motion-only BA of every tracked frame.
+    pub motion_only: MotionOnlyConfig,
+    /// EPnP + RANSAC of relocalisation.
+    pub relocalisation: PnpRansacConfig,
+    pub local_mapping: LocalMappingConfig,
+    pub loop_closing: LoopClosingConfig,
     pub semidense: SemiDenseConfig,
     pub runtime: RuntimeConfig,
     pub map: MapCapacityConfig,
@@ -394,6 +411,7 @@ impl Config {
                 &format!("must be in 1000..={MAX_MAP_POINTS}"),
             );
         }
+        self.validate_pipeline(path)?;
         if let Some(d) = self.runtime.deadline_ms {
             if d <= 0.0 || !d.is_finite() {
                 return bad("runtime.deadline_ms", "must be a positive number");
@@ -401,6 +419,91 @@ impl Config {
         }
         if self.runtime.realtime_speed <= 0.0 || !self.runtime.realtime_speed.is_finite() {
             return bad("runtime.realtime_speed", "must be a positive number");
+        }
+        Ok(())
+    }
+
+    /// Ranges of the tracking, initialisation, relocalisation and mapping parameters: counts
+    /// positive where zero would stop the stage, shares in (0, 1], gates positive (NaN fails
+    /// every check, as it fails `>`).
+    fn validate_pipeline(&self, path: &Path) -> Result<()> {
+        let bad = |field: &str, why: &str| {
+            Err(Error::Config {
+                path: path.to_path_buf(),
+                message: format!("field `{field}`: {why}"),
+            })
+        };
+        let (t, i, r, m) = (
+            &self.tracking,
+            &self.initialisation,
+            &self.relocalisation,
+            &self.motion_only,
+        );
+        let (l, c) = (&self.local_mapping, &self.loop_closing);
+        let positive = [
+            (
+                "tracking.motion_search_radius",
+                t.motion_search_radius as f64,
+            ),
+            ("initialisation.sigma", i.sigma),
+            ("initialisation.min_parallax_deg", i.min_parallax_deg),
+            ("relocalisation.chi2", r.chi2),
+            ("motion_only.chi2", m.chi2),
+            ("loop_closing.revisit_path_ratio", c.revisit_path_ratio),
+            (
+                "loop_closing.revisit_min_path_depths",
+                c.revisit_min_path_depths,
+            ),
+        ];
+        for (field, v) in positive {
+            if !(v > 0.0 && v.is_finite()) {
+                return bad(field, &format!("must be a positive number (got {v})"));
+            }
+        }
+        let shares = [
+            ("tracking.keyframe_ratio", t.keyframe_ratio),
+            ("initialisation.h_selection_ratio", i.h_selection_ratio),
+            ("relocalisation.probability", r.probability),
+            ("local_mapping.min_found_ratio", l.min_found_ratio),
+            ("local_mapping.redundancy", l.redundancy),
+        ];
+        for (field, v) in shares {
+            if !(v > 0.0 && v <= 1.0) {
+                return bad(field, &format!("must be in (0, 1] (got {v})"));
+            }
+        }
+        let counts = [
+            ("tracking.min_inliers", t.min_inliers),
+            ("tracking.max_local_keyframes", t.max_local_keyframes),
+            ("initialisation.ransac_iterations", i.ransac_iterations),
+            ("initialisation.min_triangulated", i.min_triangulated),
+            ("relocalisation.min_inliers", r.min_inliers),
+            ("relocalisation.max_iterations", r.max_iterations),
+            ("motion_only.rounds", m.rounds),
+            ("motion_only.iterations", m.iterations),
+            (
+                "local_mapping.triangulation_neighbours",
+                l.triangulation_neighbours,
+            ),
+            (
+                "loop_closing.covisibility_consistency",
+                c.covisibility_consistency,
+            ),
+            ("loop_closing.min_matches", c.min_matches),
+        ];
+        for (field, v) in counts {
+            if !(1..=MAX_ITERATIONS).contains(&v) {
+                return bad(field, &format!("must be in 1..={MAX_ITERATIONS} (got {v})"));
+            }
+        }
+        if !(-1.0..=1.0).contains(&t.min_view_cos) {
+            return bad("tracking.min_view_cos", "must be a cosine in [-1, 1]");
+        }
+        if t.min_frames_between_keyframes > t.max_frames_between_keyframes {
+            return bad(
+                "tracking.min_frames_between_keyframes",
+                "must not exceed tracking.max_frames_between_keyframes",
+            );
         }
         Ok(())
     }
@@ -448,6 +551,63 @@ mod tests {
                 .unwrap_err()
                 .to_string();
             assert!(e.contains("semidense.prior_"), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_printed_defaults_parse_back_to_the_defaults() {
+        let text = toml::to_string_pretty(&Config::default()).unwrap();
+        for section in [
+            "[tracking]",
+            "[initialisation]",
+            "[motion_only]",
+            "[relocalisation]",
+            "[local_mapping]",
+            "[loop_closing]",
+        ] {
+            assert!(
+                text.contains(section),
+                "{section} missing from the printed tree"
+            );
+        }
+        assert_eq!(
+            Config::parse(&text, Path::new("d.toml")).unwrap(),
+            Config::default()
+        );
+    }
+
+    #[test]
+    fn every_stage_is_configurable_and_checked() {
+        let c = Config::parse(
+            "[tracking]\nmin_inliers = 40\n[initialisation]\nmin_parallax_deg = 0.5\n[loop_closing]\nmin_matches = 50\n",
+            Path::new("c.toml"),
+        )
+        .unwrap();
+        assert_eq!(
+            (c.tracking.min_inliers, c.loop_closing.min_matches),
+            (40, 50)
+        );
+        assert_eq!(c.initialisation.min_parallax_deg, 0.5);
+        for (bad, field) in [
+            (
+                "[tracking]\nkeyframe_ratio = 1.5",
+                "tracking.keyframe_ratio",
+            ),
+            ("[initialisation]\nsigma = nan", "initialisation.sigma"),
+            (
+                "[relocalisation]\nmin_inliers = 0",
+                "relocalisation.min_inliers",
+            ),
+            (
+                "[local_mapping]\nredundancy = 0",
+                "local_mapping.redundancy",
+            ),
+            ("[tracking]\nmin_inlier = 3", "min_inlier"),
+        ] {
+            let e = Config::parse(bad, Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(field), "{bad}: {e}");
         }
     }
 }

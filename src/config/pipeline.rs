@@ -1,0 +1,125 @@
+//! The published parameters of tracking, pose optimisation, local mapping and loop closing
+//! (ORB-SLAM's values): here, below the modules that use them, so that one configuration
+//! tree (`[tracking]`, `[motion_only]`, `[local_mapping]`, `[loop_closing]`) reaches them.
+
+use serde::{Deserialize, Serialize};
+
+/// Published tracking parameters (ORB-SLAM's values).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackingConfig {
+    /// Search radius (pixels at level 0) of the motion-model projection; doubled on failure.
+    pub motion_search_radius: f32,
+    /// Matches needed after the motion-model search before optimising.
+    pub min_motion_matches: usize,
+    /// Inliers for tracking to succeed.
+    pub min_inliers: usize,
+    /// New keyframe when tracked points fall below this share of the reference's.
+    pub keyframe_ratio: f64,
+    /// Frames between keyframes at most (fps) and at least.
+    pub max_frames_between_keyframes: u64,
+    pub min_frames_between_keyframes: u64,
+    /// Local keyframes considered at most.
+    pub max_local_keyframes: usize,
+    /// Viewing angle limit for local-map points: cos(60 deg).
+    pub min_view_cos: f64,
+}
+
+impl Default for TrackingConfig {
+    fn default() -> Self {
+        TrackingConfig {
+            motion_search_radius: 15.0,
+            min_motion_matches: 20,
+            min_inliers: 30,
+            keyframe_ratio: 0.9,
+            max_frames_between_keyframes: 30,
+            min_frames_between_keyframes: 0,
+            max_local_keyframes: 80,
+            min_view_cos: 0.5,
+        }
+    }
+}
+
+/// Published local-mapping parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LocalMappingConfig {
+    /// Covisible keyframes used for triangulation (ORB-SLAM monocular: 20).
+    pub triangulation_neighbours: usize,
+    /// Culling: minimum found/visible ratio, and observations needed after 2 keyframes.
+    pub min_found_ratio: f64,
+    pub min_observations: usize,
+    /// Keyframe culling: share of redundant points.
+    pub redundancy: f64,
+    pub ba_iterations_robust: usize,
+    pub ba_iterations: usize,
+}
+
+impl Default for LocalMappingConfig {
+    fn default() -> Self {
+        LocalMappingConfig {
+            triangulation_neighbours: 20,
+            min_found_ratio: 0.25,
+            min_observations: 2,
+            redundancy: 0.9,
+            ba_iterations_robust: 5,
+            ba_iterations: 10,
+        }
+    }
+}
+
+/// Published parameters (ORB-SLAM's loop closing).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoopClosingConfig {
+    /// Consecutive keyframes whose candidates must be consistent.
+    pub covisibility_consistency: usize,
+    /// Keyframes since the last loop (and in the map) before detecting a new one.
+    pub min_keyframes_between_loops: usize,
+    /// Map-point matches needed after the projection search.
+    pub min_matches: usize,
+    /// Pose-graph iterations and covisibility weight of essential-graph edges.
+    pub pose_graph_iterations: usize,
+    /// Revisits (loops tracking has already joined): the path travelled from the old keyframe
+    /// must be at least this many times the distance between the two camera centres...
+    pub revisit_path_ratio: f64,
+    /// ...and at least this many times the new keyframe's median scene depth (so that drift
+    /// can have built up along it).
+    pub revisit_min_path_depths: f64,
+}
+
+impl Default for LoopClosingConfig {
+    fn default() -> Self {
+        LoopClosingConfig {
+            covisibility_consistency: 3,
+            min_keyframes_between_loops: 10,
+            min_matches: 40,
+            pose_graph_iterations: 20,
+            revisit_path_ratio: 5.0,
+            revisit_min_path_depths: 2.0,
+        }
+    }
+}
+
+/// Parameters (ORB-SLAM's values).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotionOnlyConfig {
+    pub rounds: usize,
+    pub iterations: usize,
+    /// chi² gate (2 DoF, 95%) for inlier classification and the Huber threshold.
+    pub chi2: f64,
+    /// Rounds from which the robust kernel is off.
+    pub robust_rounds: usize,
+}
+
+impl Default for MotionOnlyConfig {
+    fn default() -> Self {
+        MotionOnlyConfig {
+            rounds: 4,
+            iterations: 10,
+            chi2: 5.991,
+            robust_rounds: 2,
+        }
+    }
+}
