@@ -12,7 +12,6 @@ use std::error::Error;
 use std::path::Path;
 
 use sdslam::camera::{Frame, FrameSource, FrameStatus, ImageListSource};
-use sdslam::camera_model::RectifyMap;
 use sdslam::config::Config;
 use sdslam::geometry::WorldFromCamera;
 use sdslam::io::load_calibration;
@@ -39,7 +38,6 @@ fn main() -> Result<(), Box<dyn Error>> {
 
     // 2. The SLAM system: local mapping and semi-dense mapping on their own threads.
     let mut system = System::new(&calib, &Config::default(), info.len.unwrap_or(10_000), true);
-    let rectify = (!calib.camera.is_distortion_free()).then(|| RectifyMap::new(&calib.camera));
 
     // 3. A consumer of poses on its own thread, fed through a bounded channel.
     let (tx, rx) = crossbeam_channel::bounded::<(f64, WorldFromCamera)>(64);
@@ -54,22 +52,14 @@ fn main() -> Result<(), Box<dyn Error>> {
     });
 
     let mut frame = Frame::new(info.width, info.height);
-    let mut undistorted = Frame::new(info.width, info.height);
     loop {
         match source.next_frame(&mut frame)? {
             FrameStatus::Ready => {}
             FrameStatus::Skipped { .. } => continue,
             FrameStatus::End => break,
         }
-        let input = match &rectify {
-            Some(map) => {
-                map.remap_gray(&frame.gray, &mut undistorted.gray);
-                &undistorted.gray
-            }
-            None => &frame.gray,
-        };
-        let rgb = frame.has_color.then_some(&frame.rgb[..]);
-        let result = system.process(input, rgb, frame.timestamp, frame.index);
+        // Undistorted inside (the calibration's distortion), then tracked.
+        let result = system.process_frame(&frame);
         if let Some(t_wc) = result.t_wc {
             // try_send: a slow consumer must never hold up tracking.
             let _ = tx.try_send((frame.timestamp, t_wc));

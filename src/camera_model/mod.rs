@@ -8,4 +8,4 @@ pub mod yaml;
 
 pub use calibration::{CalibError, Calibration};
 pub use pinhole::PinholeRadtan;
-pub use rectify::RectifyMap;
+pub use rectify::{FrameRectifier, RectifyMap};

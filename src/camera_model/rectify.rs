@@ -3,6 +3,39 @@
 
 use super::PinholeRadtan;
 
+/// Undistorts whole frames into one reused buffer; a distortion-free camera's frames pass
+/// through untouched. The one rectification step of every frame consumer
+/// ([`crate::runtime::System::process_frame`], `sdslam densify`).
+pub struct FrameRectifier {
+    map: Option<RectifyMap>,
+    out: sdslam_camera::Frame,
+}
+
+impl FrameRectifier {
+    pub fn new(camera: &PinholeRadtan) -> Self {
+        FrameRectifier {
+            map: (!camera.is_distortion_free()).then(|| RectifyMap::new(camera)),
+            out: sdslam_camera::Frame::new(camera.width, camera.height),
+        }
+    }
+
+    /// `frame` in the undistorted geometry (grey, and colour when it has it).
+    pub fn apply<'a>(&'a mut self, frame: &'a sdslam_camera::Frame) -> &'a sdslam_camera::Frame {
+        let Some(map) = &self.map else {
+            return frame;
+        };
+        map.remap_gray(&frame.gray, &mut self.out.gray);
+        if frame.has_color {
+            map.remap_rgb(&frame.rgb, &mut self.out.rgb);
+        }
+        self.out.timestamp = frame.timestamp;
+        self.out.index = frame.index;
+        self.out.has_color = frame.has_color;
+        self.out.arrival = frame.arrival;
+        &self.out
+    }
+}
+
 /// For each output pixel, the top-left source pixel and bilinear weights, precomputed.
 pub struct RectifyMap {
     width: u32,

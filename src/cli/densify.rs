@@ -7,7 +7,7 @@ use std::time::Instant;
 use clap::Args;
 
 use sdslam::camera::{Frame, FrameStatus};
-use sdslam::camera_model::RectifyMap;
+use sdslam::camera_model::FrameRectifier;
 use sdslam::eval::TimedPose;
 use sdslam::io::{self, read_tum_trajectory, write_json_atomic, write_ply};
 use sdslam::runtime::TimingReport;
@@ -76,11 +76,10 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
     let calib = opened.calibration.clone();
     let info = opened.source.info().clone();
     let camera = calib.camera.undistorted();
-    let rectify = (!calib.camera.is_distortion_free()).then(|| RectifyMap::new(&calib.camera));
+    let mut rectifier = FrameRectifier::new(&calib.camera);
     let max_kf = info.len.unwrap_or(100_000) / a.every + 2;
     let mut densifier = Densifier::new(&camera, &config, max_kf);
     let mut frame = Frame::new(info.width, info.height);
-    let mut undist = Frame::new(info.width, info.height);
     let (mut with_pose, mut keyframes) = (0usize, 0usize);
     let mut stopped_early = None;
     super::signal::install();
@@ -110,17 +109,7 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
         if (with_pose - 1) % a.every != 0 {
             continue;
         }
-        let input = match &rectify {
-            Some(m) => {
-                m.remap_gray(&frame.gray, &mut undist.gray);
-                if frame.has_color {
-                    m.remap_rgb(&frame.rgb, &mut undist.rgb);
-                }
-                undist.has_color = frame.has_color;
-                &undist
-            }
-            None => &frame,
-        };
+        let input = rectifier.apply(&frame);
         let rgb = input.has_color.then_some(&input.rgb[..]);
         if densifier.add_keyframe(&input.gray, rgb, frame.timestamp, frame.index, &pose.t_wc) {
             keyframes += 1;

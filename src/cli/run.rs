@@ -6,7 +6,6 @@ use std::time::Instant;
 use clap::Args;
 
 use sdslam::camera::{Frame, FrameSource, FrameStatus, PacedSource, Pacing};
-use sdslam::camera_model::RectifyMap;
 use sdslam::io::{self, write_json_atomic, write_ply, write_tum_trajectory};
 use sdslam::runtime::{Report, StageTimer, System};
 use sdslam::tracking::TrackingState;
@@ -152,7 +151,6 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         (None, false) => None,
     };
     let deadline_ms = config.runtime.deadline_ms.unwrap_or(1e3 / calib.fps);
-    let rectify = (!calib.camera.is_distortion_free()).then(|| RectifyMap::new(&calib.camera));
 
     // Deterministic: one thread (mapping inline). Otherwise local mapping gets its own thread.
     let mut system = System::new(
@@ -185,7 +183,6 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         );
     }
     let mut frame = Frame::new(info.width, info.height);
-    let mut undistorted = Frame::new(info.width, info.height);
     // The clock of a paced source starts now: everything above (allocating the map, loading
     // a saved one) happens before the first frame arrives, not inside its deadline.
     let mut pacing_stats = None;
@@ -277,24 +274,10 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
             }
         }
         let t0 = frame.arrival.unwrap_or_else(Instant::now);
-        let input = match &rectify {
-            Some(map) => {
-                map.remap_gray(&frame.gray, &mut undistorted.gray);
-                if frame.has_color {
-                    map.remap_rgb(&frame.rgb, &mut undistorted.rgb);
-                }
-                undistorted.timestamp = frame.timestamp;
-                undistorted.index = frame.index;
-                undistorted.has_color = frame.has_color;
-                &undistorted
-            }
-            None => &frame,
-        };
-        let rgb = input.has_color.then_some(&input.rgb[..]);
-        let r = system.process(&input.gray, rgb, input.timestamp, input.index);
+        let r = system.process_frame(&frame);
         if let (Some((start, count)), None) = (a.drop, report.frames_to_recover) {
-            if input.index >= start + count && r.state == TrackingState::Ok {
-                report.frames_to_recover = Some(input.index - (start + count));
+            if frame.index >= start + count && r.state == TrackingState::Ok {
+                report.frames_to_recover = Some(frame.index - (start + count));
             }
         }
         let ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -302,7 +285,7 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         if ms > deadline_ms {
             report.deadline_misses += 1;
             tracing::debug!(
-                frame = input.index,
+                frame = frame.index,
                 latency_ms = ms,
                 state = ?r.state,
                 keyframe = r.new_keyframe,
@@ -313,14 +296,14 @@ pub fn run_with(a: RunArgs) -> Result<RunOutcome> {
         #[cfg(feature = "rerun")]
         if let Some(v) = &viewer {
             if let Some(t_wc) = &r.t_wc {
-                v.frame(input.timestamp, t_wc);
+                v.frame(frame.timestamp, t_wc);
             }
             if r.new_keyframe {
-                v.keyframes(input.timestamp, &system.keyframe_trajectory());
+                v.keyframes(frame.timestamp, &system.keyframe_trajectory());
                 // The cloud so far is readable while running in the single-thread mode only
                 // (the semi-dense thread hands its results over at the end).
                 if system.semidense().is_some() && system.map_size().0.is_multiple_of(5) {
-                    v.cloud(input.timestamp, &system.semidense_cloud());
+                    v.cloud(frame.timestamp, &system.semidense_cloud());
                 }
             }
         }

@@ -123,6 +123,8 @@ pub struct System {
     localize_only: bool,
     frame: TrackedFrame,
     trajectory: Vec<TrajectoryEntry>,
+    /// Undistorts raw frames for [`process_frame`](Self::process_frame) (taken out while used).
+    rectifier: Option<crate::camera_model::FrameRectifier>,
     /// Consecutive lost frames while the map has at most 5 keyframes.
     young_map_lost_frames: usize,
     /// Consecutive frames initialisation has failed (for a warning).
@@ -236,6 +238,7 @@ impl System {
             backfill: Backfill::default(),
             frame: TrackedFrame::new(max_features, w, h),
             trajectory: Vec::with_capacity(expected_frames),
+            rectifier: Some(crate::camera_model::FrameRectifier::new(&calib.camera)),
             young_map_lost_frames: 0,
             uninitialised_frames: 0,
             stats: SystemStats {
@@ -383,6 +386,26 @@ impl System {
     }
 
     /// Tracks one undistorted frame (grey, optional RGB of the same size).
+    /// Processes a raw frame of the source: undistorted first (the calibration's distortion),
+    /// then [`process`](Self::process).
+    pub fn process_frame(&mut self, frame: &crate::camera::Frame) -> FrameResult {
+        let mut rectifier = self.rectifier.take();
+        let result = match rectifier.as_mut() {
+            Some(r) => {
+                let f = r.apply(frame);
+                let rgb = f.has_color.then_some(&f.rgb[..]);
+                self.process(&f.gray, rgb, f.timestamp, f.index)
+            }
+            None => {
+                let rgb = frame.has_color.then_some(&frame.rgb[..]);
+                self.process(&frame.gray, rgb, frame.timestamp, frame.index)
+            }
+        };
+        self.rectifier = rectifier;
+        result
+    }
+
+    /// Processes one undistorted frame (grey, and colour for the semi-dense cloud).
     pub fn process(
         &mut self,
         gray: &[u8],
