@@ -28,10 +28,12 @@ use crate::tracking::{InitAttempt, Initializer, TrackedFrame, Tracker, TrackingS
 use std::collections::HashMap;
 
 mod backfill;
+mod finish;
 mod initialisation;
 mod map_files;
 mod mapping_thread;
 mod reserved;
+mod trajectory;
 
 pub use reserved::ReservedMemory;
 
@@ -278,77 +280,6 @@ impl System {
     /// Read access to the map (locks it; keep the guard short in threaded mode).
     pub fn map(&self) -> MutexGuard<'_, Map> {
         lock(&self.map)
-    }
-
-    /// Ends the run: [`finish_tracking`](Self::finish_tracking), then
-    /// [`finish_semidense`](Self::finish_semidense) with the whole backlog reconstructed.
-    /// Returns false when a thread had panicked (what it had not finished is lost; the map
-    /// and everything else are still usable).
-    pub fn finish(&mut self) -> bool {
-        let ok = self.finish_tracking();
-        self.finish_semidense(false) && ok
-    }
-
-    /// Stops the mapping thread after it has processed every queued keyframe and joins it,
-    /// tracks the frames still waiting for the initial backfill and runs the final full BA:
-    /// afterwards the trajectory, keyframes and map are final. False when the mapping thread
-    /// had panicked (the map is still usable).
-    pub fn finish_tracking(&mut self) -> bool {
-        let mut ok = true;
-        if let Some((joined, timer, loops)) = self.mapping.join() {
-            ok = joined;
-            if let Some(t) = timer {
-                self.stats.local_mapping = t;
-            }
-            if let Some(t) = loops.timer {
-                self.stats.loop_closing = t;
-            }
-            self.stats.loops_closed = loops.loops_closed;
-            self.stats.loops_closed_by_revisit = loops.revisits_closed;
-            self.stats.loop_closures = loops.history;
-        }
-        if self.backfill.active() {
-            let map_arc = Arc::clone(&self.map);
-            let mut m = lock(&map_arc);
-            self.backfill_step(&mut m, usize::MAX);
-        }
-        // Final full BA (every keyframe and point; the first keyframe fixed) before the last
-        // semi-dense keyframes are reconstructed, so they and the cloud use the refined poses.
-        if self.final_ba && !self.finished && !self.localize_only {
-            let map_arc = Arc::clone(&self.map);
-            let mut m = lock(&map_arc);
-            if m.n_keyframes() >= 3 {
-                let t = Instant::now();
-                self.global_ba(&mut m, 15);
-                self.stats.final_ba_ms = t.elapsed().as_secs_f64() * 1e3;
-            }
-        }
-        self.finished = true;
-        ok
-    }
-
-    /// After [`finish_tracking`](Self::finish_tracking): reconstructs the keyframes still
-    /// waiting for semi-dense mapping, or with `cut` (an interrupted run) drops them, counted
-    /// in the semi-dense stats, and joins that thread. False when it had panicked.
-    pub fn finish_semidense(&mut self, cut: bool) -> bool {
-        if !self.finished {
-            self.finish_tracking();
-        }
-        self.semidense.finish(&self.map, cut)
-    }
-
-    /// After [`finish`](Self::finish): frees what only running needed (the semi-dense
-    /// gradient cache and per-pixel buffers, its worker threads, keyframe images), so writing
-    /// the outputs does not add to the run's peak memory. Poses, map, cloud and depth maps
-    /// stay readable; nothing can be processed afterwards.
-    pub fn release_working_memory(&mut self) {
-        if !self.finished {
-            return;
-        }
-        if let Some(m) = self.semidense.mapper_mut() {
-            m.release_working_memory();
-        }
-        lock(&self.map).release_images();
     }
 
     /// Localisation only: track (and relocalise) against the map without adding keyframes,
@@ -658,52 +589,6 @@ impl System {
         {
             job.solve();
             job.merge(map);
-        }
-    }
-
-    /// Poses (`T_wc`) of every tracked frame, following their reference keyframe's correction.
-    pub fn trajectory(&self) -> Vec<TimedPose> {
-        let map = lock(&self.map);
-        let mut v: Vec<TimedPose> = self
-            .trajectory
-            .iter()
-            .map(|e| {
-                let t_cw = match e.reference.and_then(|r| map.keyframe(r)) {
-                    Some(k) => CameraFromWorld(e.t_c_ref * k.t_cw.0),
-                    None => e.t_cw,
-                };
-                TimedPose {
-                    timestamp: e.timestamp,
-                    t_wc: t_cw.inverse(),
-                }
-            })
-            .collect();
-        // Backfilled frames were appended after initialisation: order by time.
-        v.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
-        v
-    }
-
-    /// Final keyframe poses, by time.
-    pub fn keyframe_trajectory(&self) -> Vec<TimedPose> {
-        let map = lock(&self.map);
-        let mut v: Vec<TimedPose> = map
-            .keyframes()
-            .map(|(_, k)| TimedPose {
-                timestamp: k.timestamp,
-                t_wc: k.t_cw.inverse(),
-            })
-            .collect();
-        v.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
-        v
-    }
-}
-
-impl Drop for System {
-    /// Joins every thread. Not while unwinding from a panic: a second panic there would abort
-    /// the process before the caller's outputs are written.
-    fn drop(&mut self) {
-        if !std::thread::panicking() {
-            self.finish();
         }
     }
 }
