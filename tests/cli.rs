@@ -539,7 +539,7 @@ fn record_from_the_fake_camera_replays_as_a_tum_folder() {
 #[test]
 fn interrupt_mid_run_writes_the_outputs_so_far() {
     let out = tempfile::tempdir().unwrap();
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_sdslam"))
+    let mut child = std::process::Command::new(common::sdslam_bin())
         .args(["run", "fakecam:yuyv", "--out", out.path().to_str().unwrap()])
         .stderr(std::process::Stdio::piped())
         .spawn()

@@ -14,7 +14,7 @@ use sdslam::geometry::Sim3;
 use sdslam::io::{write_rgb_png, CloudPoint};
 use sdslam::{Error, Result};
 
-static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+static FONT: &[u8] = include_bytes!("assets/DejaVuSans.ttf");
 
 fn font() {
     static ONCE: Once = Once::new();

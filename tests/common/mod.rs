@@ -6,7 +6,7 @@ use std::path::PathBuf;
 /// `../shared/data` beside the checkout. In CI (`CI=true`) its absence fails the test loudly;
 /// elsewhere the test is skipped with a message.
 pub fn shared_data() -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    let p = checkout_root().join("../shared/data");
     if p.is_dir() {
         return Some(p);
     }
@@ -20,15 +20,34 @@ pub fn shared_data() -> Option<PathBuf> {
     None
 }
 
-/// Path of the `sdslam` binary built for this test run.
-pub fn sdslam_bin() -> PathBuf {
-    PathBuf::from(env!("CARGO_BIN_EXE_sdslam"))
+/// The checkout's top folder (the workspace root, where Cargo.lock is), whichever of its
+/// crates (the library, or the binary in src/cli) this test belongs to.
+pub fn checkout_root() -> PathBuf {
+    let here = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut dir = here.as_path();
+    while !dir.join("Cargo.lock").exists() {
+        match dir.parent() {
+            Some(p) => dir = p,
+            None => return here,
+        }
+    }
+    dir.to_path_buf()
 }
 
-/// Runs `sdslam ARGS`, returning (success, stdout, stderr).
+/// Path of the `sdslam` binary built for this test run.
+pub fn sdslam_bin() -> PathBuf {
+    match option_env!("CARGO_BIN_EXE_sdslam") {
+        Some(p) => PathBuf::from(p),
+        None => panic!("this test runs the sdslam binary: list it in src/cli/Cargo.toml"),
+    }
+}
+
+/// Runs `sdslam ARGS` in the checkout's top folder (relative paths such as `calib/...` resolve
+/// there), returning (success, stdout, stderr).
 pub fn sdslam(args: &[&str]) -> (bool, String, String) {
     let out = std::process::Command::new(sdslam_bin())
         .args(args)
+        .current_dir(checkout_root())
         .env_remove("RUST_BACKTRACE")
         .output()
         .expect("run sdslam");

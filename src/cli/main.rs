@@ -1,4 +1,7 @@
-//! Subcommands of `sdslam`.
+//! The `sdslam` command-line tool: argument parsing, subcommands and the files they write.
+//! Everything that computes lives in the `sdslam` library; this crate holds what only a
+//! command line needs (clap, plots, the progress bar, log output, the Rerun viewer), so a
+//! robot embedding the library does not pull them in.
 
 /// A line to stderr that never panics: a closed or full stderr (`2>/dev/full`, `| head -1`)
 /// must not cost a run its outputs.
@@ -38,6 +41,7 @@ mod viewer;
 mod vocab;
 
 use std::path::PathBuf;
+use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
@@ -49,7 +53,7 @@ use sdslam::Result;
 /// `sdslam run synthetic`).
 #[derive(Parser, Debug)]
 #[command(name = "sdslam", version, about, long_about = None)]
-pub struct Cli {
+struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
     /// More log lines on stderr: -v events (map initialised, lost, relocalised, loop closed),
@@ -116,7 +120,17 @@ enum Command {
     Synth(synth::SynthArgs),
 }
 
-pub fn dispatch(cli: Cli) -> Result<()> {
+fn main() -> ExitCode {
+    match dispatch(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            note!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn dispatch(cli: Cli) -> Result<()> {
     init_logging(cli.verbose);
     QUIET.store(cli.quiet, std::sync::atomic::Ordering::Relaxed);
     match cli.command {

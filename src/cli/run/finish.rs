@@ -1,0 +1,271 @@
+//! The last stages of `sdslam run`: finish (tracking outputs as soon as the mapping threads
+//! are joined, then the semi-dense backlog and its cloud) and write (pictures, the final
+//! report, the summary line, the exit status).
+
+use std::time::Instant;
+
+use sdslam::eval::{AteResult, TimedPose};
+use sdslam::geometry::CloudPoint;
+use sdslam::io::{self, write_json_atomic, write_ply, write_tum_trajectory};
+use sdslam::runtime::{Report, StageTimer, System};
+use sdslam::semidense::SemiDenseMapper;
+use sdslam::Result;
+
+use super::session::{Running, Session};
+use super::RunOutcome;
+
+/// What the finish stage hands to the write stage.
+pub struct Finished {
+    keyframes: Vec<TimedPose>,
+    alignment: Option<AteResult>,
+    cloud: Vec<CloudPoint>,
+    threads_ok: bool,
+}
+
+/// Stage 4. Tracking outputs first (trajectory, keyframes, a first report.json): they are
+/// final once the mapping threads are joined, and must not wait for the semi-dense backlog.
+pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
+    if let Some(pb) = r.progress.take() {
+        pb.finish_and_clear();
+    }
+    note_capture_stats(s, r);
+    r.report.wall_time_s = s.started.elapsed().as_secs_f64();
+    let interrupted = crate::signal::interrupted();
+    if interrupted {
+        r.report.stopped_early.get_or_insert_with(|| {
+            "interrupted (Ctrl-C); outputs written from the run so far".into()
+        });
+    }
+    let finishing = Instant::now();
+    let mut threads_ok = r.system.finish_tracking();
+    fill_tracking_report(&mut r.report, &r.system, &r.frame_timer);
+    let trajectory = r.system.trajectory();
+    let keyframes = r.system.keyframe_trajectory();
+    let alignment = s
+        .groundtruth
+        .as_ref()
+        .and_then(|gt| sdslam::eval::ate(gt, &keyframes, 0.02, true));
+    r.report.keyframe_ate_rmse_m = alignment.as_ref().map(|a| a.rmse_m);
+    s.outputs
+        .write("trajectory.txt", |p| write_tum_trajectory(p, &trajectory));
+    s.outputs
+        .write("keyframes.txt", |p| write_tum_trajectory(p, &keyframes));
+    if let Some(path) = &s.args.save_map {
+        let system = &r.system;
+        s.outputs.write_at("map", path, |p| save_map(system, p));
+    }
+    r.report.peak_rss_mb = io::peak_rss_mb();
+    s.outputs
+        .write("report.json", |p| write_json_atomic(p, &r.report));
+    if interrupted && s.config.semidense.enabled {
+        note!("sdslam: tracking outputs written; cutting the semi-dense backlog");
+    }
+
+    threads_ok &= r.system.finish_semidense(interrupted);
+    r.system.release_working_memory();
+    if !threads_ok {
+        r.report.stopped_early.get_or_insert_with(|| {
+            "a worker thread panicked; outputs written from the map as it was".into()
+        });
+    }
+    let cloud = r.system.semidense_cloud();
+    #[cfg(feature = "rerun")]
+    if let Some(v) = &r.viewer {
+        let t = keyframes.last().map_or(0.0, |k| k.timestamp);
+        v.keyframes(t, &keyframes);
+        v.cloud(t, &cloud);
+    }
+    s.outputs.write("semidense.ply", |p| write_ply(p, &cloud));
+    r.report.semidense_points = cloud.len();
+    if let Some(sd) = r.system.semidense() {
+        fill_semidense_report(&mut r.report, sd, finishing);
+        semidense_extras(s, &mut r.report, sd, &cloud, alignment.as_ref());
+    }
+    Finished {
+        keyframes,
+        alignment,
+        cloud,
+        threads_ok,
+    }
+}
+
+/// Stage 5: pictures, the final report, the summary, and an error when an output or a thread
+/// failed (every other output is written by then).
+pub fn write(mut s: Session, mut r: Running, f: Finished) -> Result<RunOutcome> {
+    if !s.args.no_plots {
+        let aligned = s.groundtruth.as_ref().zip(f.alignment.as_ref());
+        s.outputs.write("trajectory.png", |p| {
+            crate::plots::trajectory(
+                p,
+                &f.keyframes,
+                aligned.map(|(gt, a)| (gt.as_slice(), &a.alignment, a.rmse_m)),
+            )
+        });
+        s.outputs
+            .write("cloud.png", |p| crate::plots::cloud(p, &f.cloud));
+        s.outputs.write("timing.png", |p| {
+            crate::plots::timing(p, r.frame_timer.samples_ms(), s.deadline_ms)
+        });
+    }
+    // Last, so the peak covers the whole run (finishing, the cloud, evaluation, plots).
+    r.report.peak_rss_mb = io::peak_rss_mb();
+    s.outputs
+        .write("report.json", |p| write_json_atomic(p, &r.report));
+    note_summary(&s, &r);
+    if !s.outputs.failures().is_empty() {
+        return Err(sdslam::Error::Invalid(format!(
+            "{} output(s) not written ({}); the others are in {}",
+            s.outputs.failures().len(),
+            s.outputs.failures().join("; "),
+            s.outputs.dir().display()
+        )));
+    }
+    if !f.threads_ok {
+        return Err(sdslam::Error::Invalid(format!(
+            "{}; every output was written to {}",
+            r.report
+                .stopped_early
+                .as_deref()
+                .unwrap_or("a worker thread failed"),
+            s.outputs.dir().display()
+        )));
+    }
+    Ok(RunOutcome {
+        latencies_ms: r.frame_timer.samples_ms().to_vec(),
+        report: r.report,
+    })
+}
+
+/// The map file, encoded and written atomically.
+fn save_map(system: &System, p: &std::path::Path) -> Result<()> {
+    let bytes = system
+        .save_map()
+        .encode()
+        .map_err(|e| sdslam::Error::format(p, e))?;
+    io::write_atomic(p, &bytes)?;
+    note!(
+        "sdslam: map saved to {} ({} kB)",
+        p.display(),
+        bytes.len() / 1024
+    );
+    Ok(())
+}
+
+/// Frames the pacing or the camera driver dropped, and how old frames were when dequeued.
+fn note_capture_stats(s: &Session, r: &mut Running) {
+    if let Some(p) = &r.pacing_stats {
+        r.report.dropped_frames = p.dropped();
+    }
+    if let Some(l) = &s.live {
+        use std::sync::atomic::Ordering::Relaxed;
+        r.report.driver_dropped_frames = l.driver_drops.load(Relaxed);
+        let age = l.mean_age_us.load(Relaxed);
+        r.report.capture_to_dequeue_ms = (age > 0).then_some(age as f64 / 1e3);
+    }
+}
+
+/// The tracking and mapping figures of a finished run.
+fn fill_tracking_report(report: &mut Report, system: &System, frame_timer: &StageTimer) {
+    report.timing_ms.tracking = frame_timer.percentiles();
+    report.timing_ms.orb_extraction = system.stats.orb_extraction.percentiles();
+    report.timing_ms.local_ba = system.stats.local_mapping.percentiles();
+    report.timing_ms.pose_prediction = system.tracker.t_prediction.percentiles();
+    report.timing_ms.local_map_tracking = system.tracker.t_local_map.percentiles();
+    report.timing_ms.relocalisation = system.tracker.t_relocalisation.percentiles();
+    report.timing_ms.keyframe_insertion = system.stats.keyframe_insertion.percentiles();
+    report.timing_ms.map_lock_wait = system.stats.map_lock_wait.percentiles();
+    report.tracked_frames = system.stats.tracked_frames;
+    report.backfilled_frames = system.stats.backfilled_frames;
+    report.map_resets = system.stats.resets;
+    report.poses_discarded_by_reset = system.stats.poses_discarded_by_reset;
+    report.lost_episodes = system.tracker.lost_episodes;
+    report.relocalisations = system.tracker.relocalisations;
+    report.loops_closed = system.stats.loops_closed;
+    report.loops_closed_by_revisit = system.stats.loops_closed_by_revisit;
+    report.loop_closures.clone_from(&system.stats.loop_closures);
+    report.final_ba_ms = system.stats.final_ba_ms;
+    report.timing_ms.loop_closing = system.stats.loop_closing.percentiles();
+    (report.keyframes, report.map_points) = system.map_size();
+}
+
+/// The semi-dense mapper's counts and timings.
+fn fill_semidense_report(report: &mut Report, sd: &SemiDenseMapper, finishing: Instant) {
+    report.semidense_keyframes = sd.stats.keyframes_reconstructed;
+    report.semidense_skipped_keyframes = sd.stats.keyframes_skipped;
+    report.semidense_skipped_culled = sd.stats.skipped_culled;
+    report.semidense_skipped_no_neighbours = sd.stats.skipped_no_neighbours;
+    report.semidense_skipped_overload = sd.stats.skipped_overload;
+    report.semidense_skipped_cut = sd.stats.skipped_cut;
+    report.semidense_busy_s = sd.stats.busy_s;
+    report.semidense_finish_s = finishing.elapsed().as_secs_f64();
+    report.timing_ms.semidense_keyframe = sd.t_keyframe.percentiles();
+    report.timing_ms.semidense_depth = sd.t_depth.percentiles();
+    report.timing_ms.semidense_intra = sd.t_intra.percentiles();
+    report.timing_ms.semidense_inter = sd.t_inter.percentiles();
+}
+
+/// Depth maps on request, and the cloud's accuracy where there is ground-truth depth.
+fn semidense_extras(
+    s: &mut Session,
+    report: &mut Report,
+    sd: &SemiDenseMapper,
+    cloud: &[CloudPoint],
+    alignment: Option<&AteResult>,
+) {
+    if sd.stats.skipped_cut > 0 {
+        note!(
+            "sdslam: interrupted: {} keyframes of the semi-dense backlog were cut (not reconstructed, or not verified by the inter-keyframe check; semidense_skipped_cut in report.json)",
+            sd.stats.skipped_cut
+        );
+    }
+    let (width, height) = (s.info.width, s.info.height);
+    if s.args.depth_maps {
+        let out = s.args.out.clone();
+        s.outputs.write("depth", |_| {
+            crate::densify::write_depth_maps(&out, sd, width, height)
+        });
+    }
+    let (Some(gt), Some(ate), false) = (&s.groundtruth, alignment, cloud.is_empty()) else {
+        return;
+    };
+    let stamps: Vec<f64> = sd.entries().iter().map(|e| e.timestamp).collect();
+    match s.depth_truth.load(&stamps, gt, width, height) {
+        Ok(frames) if !frames.is_empty() => {
+            report.semidense_accuracy = Some(sdslam::eval::cloud_accuracy(
+                cloud,
+                &ate.alignment,
+                &s.calib.camera,
+                &frames,
+            ));
+        }
+        Ok(_) => {}
+        Err(e) => note!("warning: semi-dense accuracy not evaluated: {e}"),
+    }
+}
+
+/// The run's result on stderr.
+fn note_summary(s: &Session, r: &Running) {
+    let report = &r.report;
+    if let Some(acc) = &report.semidense_accuracy {
+        note!(
+            "sdslam: semi-dense {} points ({:.0} per keyframe): median relative depth error {}, {:.1}% within 2%, {:.2}% off by > 10%",
+            acc.points,
+            acc.points_per_keyframe,
+            crate::percent(acc.median_relative_error),
+            acc.within_2pct * 100.0,
+            acc.outliers_10pct * 100.0
+        );
+    }
+    note!(
+        "sdslam: {} frames ({} skipped), {} tracked, {} keyframes, {} points{}, {:.1} s; state {:?}; outputs in {}",
+        report.frames,
+        report.skipped_frames,
+        report.tracked_frames,
+        report.keyframes,
+        report.map_points,
+        report.keyframe_ate_rmse_m.map(|a| format!(", keyframe ATE {:.4} (Sim3-aligned)", a)).unwrap_or_default(),
+        report.wall_time_s,
+        r.system.state(),
+        s.outputs.dir().display()
+    );
+}
