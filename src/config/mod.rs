@@ -215,6 +215,10 @@ pub struct MapCapacityConfig {
     /// A full BA on a background thread after each loop closure, merged without stopping
     /// tracking (built-in sequence, deterministic: keyframe ATE 0.36 -> 0.20 cm).
     pub global_ba_after_loop: bool,
+    /// Levenberg-Marquardt iterations of the full BA after a loop (ORB-SLAM: 10) and of the
+    /// final one.
+    pub global_ba_iterations: usize,
+    pub final_ba_iterations: usize,
 }
 
 impl Default for MapCapacityConfig {
@@ -224,6 +228,8 @@ impl Default for MapCapacityConfig {
             max_map_points: 100_000,
             final_global_ba: true,
             global_ba_after_loop: true,
+            global_ba_iterations: 10,
+            final_ba_iterations: 15,
         }
     }
 }
@@ -490,6 +496,20 @@ impl Config {
                 c.covisibility_consistency,
             ),
             ("loop_closing.min_matches", c.min_matches),
+            (
+                "tracking.relocalisation_candidates",
+                t.relocalisation_candidates,
+            ),
+            (
+                "tracking.young_map_patience_frames",
+                t.young_map_patience_frames,
+            ),
+            (
+                "initialisation.min_initial_map_points",
+                i.min_initial_map_points,
+            ),
+            ("map.global_ba_iterations", self.map.global_ba_iterations),
+            ("map.final_ba_iterations", self.map.final_ba_iterations),
         ];
         for (field, v) in counts {
             if !(1..=MAX_ITERATIONS).contains(&v) {

@@ -23,6 +23,14 @@ pub struct TrackingConfig {
     pub max_local_keyframes: usize,
     /// Viewing angle limit for local-map points: cos(60 deg).
     pub min_view_cos: f64,
+    /// Keyframes the place database proposes to relocalise against (best bag-of-words
+    /// scores; ORB-SLAM takes every keyframe above a score, at most about this many matter).
+    pub relocalisation_candidates: usize,
+    /// A map of at most this many keyframes is young: lost in it for more than
+    /// `young_map_patience_frames` consecutive frames, it is discarded and initialisation
+    /// starts over (ORB-SLAM resets at once; a short blackout should not cost the map).
+    pub young_map_keyframes: usize,
+    pub young_map_patience_frames: usize,
 }
 
 impl Default for TrackingConfig {
@@ -36,6 +44,9 @@ impl Default for TrackingConfig {
             min_frames_between_keyframes: 0,
             max_local_keyframes: 80,
             min_view_cos: 0.5,
+            relocalisation_candidates: 10,
+            young_map_keyframes: 5,
+            young_map_patience_frames: 30,
         }
     }
 }

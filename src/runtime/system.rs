@@ -93,7 +93,6 @@ fn lock(map: &Mutex<Map>) -> MutexGuard<'_, Map> {
 
 /// Frames a map of at most 5 keyframes is kept while tracking is lost, trying to relocalise
 /// in it, before it is discarded and initialisation starts over (one second at 30 fps).
-const YOUNG_MAP_PATIENCE_FRAMES: usize = 30;
 
 pub struct System {
     pub camera: PinholeRadtan,
@@ -112,7 +111,6 @@ pub struct System {
     /// Held while tracking waits for the map lock: local mapping does not start its next
     /// step meanwhile (so tracking waits for one short step at most).
     map_wanted: ForegroundGate,
-    global_ba_after_loop: bool,
     finished: bool,
     /// Place recognition for relocalisation: the vocabulary (the shipped default unless one is
     /// given) and the keyframe database, keyed by keyframe serial.
@@ -127,11 +125,20 @@ pub struct System {
     trajectory: Vec<TrajectoryEntry>,
     /// Undistorts raw frames for [`process_frame`](Self::process_frame) (taken out while used).
     rectifier: Option<crate::camera_model::FrameRectifier>,
-    /// Consecutive lost frames while the map has at most 5 keyframes.
+    /// Consecutive lost frames while the map is young (`[tracking] young_map_keyframes`).
     young_map_lost_frames: usize,
+    limits: SystemLimits,
     /// Consecutive frames initialisation has failed (for a warning).
     uninitialised_frames: usize,
     pub stats: SystemStats,
+}
+
+/// The configured numbers `System` itself applies (the stages keep their own).
+struct SystemLimits {
+    young_map_keyframes: usize,
+    young_map_patience_frames: usize,
+    relocalisation_candidates: usize,
+    final_ba_iterations: usize,
 }
 
 impl System {
@@ -173,6 +180,7 @@ impl System {
             local_mapping: config.local_mapping.clone(),
             loop_closing: config.loop_closing.clone(),
             global_ba_after_loop: config.map.global_ba_after_loop,
+            global_ba_iterations: config.map.global_ba_iterations,
         };
         let mapping = if threaded {
             spawn_mapper(
@@ -185,7 +193,7 @@ impl System {
                 map_wanted.clone(),
             )
         } else {
-            Mapping::Inline(Box::new((setup.local_mapper(), setup.loop_closer())))
+            setup.inline()
         };
         let semidense = if config.semidense.enabled {
             let k = Intrinsics {
@@ -234,7 +242,6 @@ impl System {
             gate,
             map_wanted,
             localize_only: false,
-            global_ba_after_loop: config.map.global_ba_after_loop,
             finished: false,
             init: Initializer::new(max_features, w, h).with_config(config.initialisation.clone()),
             backfill: Backfill::default(),
@@ -242,6 +249,12 @@ impl System {
             trajectory: Vec::with_capacity(expected_frames),
             rectifier: Some(crate::camera_model::FrameRectifier::new(&calib.camera)),
             young_map_lost_frames: 0,
+            limits: SystemLimits {
+                young_map_keyframes: config.tracking.young_map_keyframes,
+                young_map_patience_frames: config.tracking.young_map_patience_frames,
+                relocalisation_candidates: config.tracking.relocalisation_candidates,
+                final_ba_iterations: config.map.final_ba_iterations,
+            },
             uninitialised_frames: 0,
             stats: SystemStats {
                 frames: 0,
@@ -387,11 +400,12 @@ impl System {
                 new_keyframe = self.insert_keyframe(map, gray, rgb, t0);
                 self.stats.keyframe_insertion.record(tk.elapsed());
             }
-            if st == TrackingState::Lost && map.n_keyframes() <= 5 && !self.localize_only {
+            let young = map.n_keyframes() <= self.limits.young_map_keyframes;
+            if st == TrackingState::Lost && young && !self.localize_only {
                 // Lost right after initialisation: relocalise in the young map for a while (a
                 // short blackout, a covered lens), then start over (ORB-SLAM resets at once).
                 self.young_map_lost_frames += 1;
-                if self.young_map_lost_frames > YOUNG_MAP_PATIENCE_FRAMES {
+                if self.young_map_lost_frames > self.limits.young_map_patience_frames {
                     self.young_map_lost_frames = 0;
                     self.reset(map);
                 }
@@ -455,7 +469,8 @@ impl System {
         let mut candidates = Vec::new();
         {
             let mut places = self.places.lock().unwrap_or_else(|e| e.into_inner());
-            let hits = places.database.query(&bow, 0.0, 10, |_| false);
+            let n = self.limits.relocalisation_candidates;
+            let hits = places.database.query(&bow, 0.0, n, |_| false);
             for (key, _) in hits {
                 match places.keys.get(&key) {
                     Some(&kf) if map.keyframe(kf).is_some() => candidates.push(kf),
@@ -536,28 +551,16 @@ impl System {
             Mapping::Inline(m) => {
                 self.stats.tracking.record(t0.elapsed());
                 let tm = Instant::now();
-                let (mapper, closer) = &mut **m;
+                let (mapper, loops) = &mut **m;
                 mapper.process(map, kf);
                 self.stats.local_mapping.record(tm.elapsed());
                 let places = self.places.lock().unwrap_or_else(|e| e.into_inner());
-                let tl = Instant::now();
-                let closed = closer.process(map, &places, kf).is_some();
+                let closed = loops.process_inline(map, &places, kf);
                 drop(places);
+                (self.stats.loops_closed, self.stats.loops_closed_by_revisit) = loops.counts();
                 if closed {
-                    self.stats.loop_closing.record(tl.elapsed());
-                }
-                if closed && self.global_ba_after_loop {
-                    // Deterministic mode: the full BA after the loop runs inline.
-                    let scales = self.tracker.scales.clone();
-                    if let Some(mut job) = GlobalBaJob::prepare(map, &self.camera, &scales, 10) {
-                        job.solve();
-                        job.merge(map);
-                    }
-                }
-                self.stats.loops_closed = closer.loops_closed;
-                self.stats.loops_closed_by_revisit = closer.revisits_closed;
-                if closed {
-                    self.stats.loop_closures.clone_from(&closer.history);
+                    self.stats.loop_closures.clear();
+                    self.stats.loop_closures.extend_from_slice(loops.history());
                 }
             }
             Mapping::Thread { tx, idle, .. } => {

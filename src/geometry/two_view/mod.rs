@@ -32,6 +32,9 @@ pub struct TwoViewConfig {
     /// Choose H when `S_H / (S_H + S_F)` exceeds this.
     pub h_selection_ratio: f64,
     pub seed: u64,
+    /// Map points the initial map must keep after its two-view BA, or it is refused
+    /// (ORB-SLAM monocular: 100).
+    pub min_initial_map_points: usize,
 }
 
 impl Default for TwoViewConfig {
@@ -43,6 +46,7 @@ impl Default for TwoViewConfig {
             min_triangulated: 50,
             h_selection_ratio: 0.45,
             seed: 0,
+            min_initial_map_points: 100,
         }
     }
 }

@@ -43,7 +43,7 @@ impl System {
             let mut m = lock(&map_arc);
             if m.n_keyframes() >= 3 {
                 let t = Instant::now();
-                self.global_ba(&mut m, 15);
+                self.global_ba(&mut m, self.limits.final_ba_iterations);
                 self.stats.final_ba_ms = t.elapsed().as_secs_f64() * 1e3;
             }
         }

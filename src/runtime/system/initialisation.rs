@@ -87,7 +87,7 @@ impl System {
             return TrackingState::NotInitialised;
         };
         let tracked = map.keyframe(kf1).map_or(0, |k| k.observed().count());
-        if tracked < 100 {
+        if tracked < self.init.config.min_initial_map_points {
             map.reset();
             return TrackingState::NotInitialised;
         }

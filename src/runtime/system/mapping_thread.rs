@@ -7,7 +7,7 @@ use super::*;
 /// Where local mapping runs.
 pub(super) enum Mapping {
     /// On the tracking thread, right after the keyframe is made (deterministic mode).
-    Inline(Box<(LocalMapper, LoopCloser)>),
+    Inline(Box<(LocalMapper, LoopWorker)>),
     /// On its own thread, fed by a bounded channel; never holds the map during BA. Loop
     /// closing runs on a third thread fed by the mapping thread (`None`: it could not be
     /// started, and the mapping thread closes loops itself).
@@ -35,14 +35,14 @@ impl Mapping {
     /// both. Returns whether neither had panicked, the local-mapping timer and the loop
     /// figures; `None` inline.
     pub(super) fn join(&mut self) -> Option<(bool, Option<StageTimer>, LoopStats)> {
-        let Mapping::Thread {
-            tx,
-            handle,
-            closer,
-            idle,
-        } = self
-        else {
-            return None;
+        let (tx, handle, closer, idle) = match self {
+            Mapping::Inline(m) => return Some((true, None, m.1.take_stats())),
+            Mapping::Thread {
+                tx,
+                handle,
+                closer,
+                idle,
+            } => (tx, handle, closer, idle),
         };
         tx.take();
         let (mut ok, mut timer, mut loops) = (true, None, LoopStats::default());
@@ -72,6 +72,7 @@ pub(super) struct MapperSetup {
     pub local_mapping: crate::config::LocalMappingConfig,
     pub loop_closing: crate::config::LoopClosingConfig,
     pub global_ba_after_loop: bool,
+    pub global_ba_iterations: usize,
 }
 
 impl MapperSetup {
@@ -85,6 +86,11 @@ impl MapperSetup {
         let mut c = LoopCloser::new(self.camera, &self.scales);
         c.config = self.loop_closing.clone();
         c
+    }
+
+    /// Local mapping and loop closing on the caller's thread (deterministic mode).
+    pub fn inline(&self) -> Mapping {
+        Mapping::Inline(Box::new((self.local_mapper(), LoopWorker::new(self))))
     }
 }
 
@@ -150,7 +156,7 @@ pub(super) fn spawn_mapper(
                     (Some(t), _) => {
                         let _ = t.send(kf);
                     }
-                    (None, Some(w)) => w.process(&map, &places, kf),
+                    (None, Some(w)) => w.process_shared(&map, &places, kf),
                     (None, None) => {}
                 }
                 idle_t.store(rx.is_empty(), Ordering::Release);
@@ -167,7 +173,7 @@ pub(super) fn spawn_mapper(
             idle,
         },
         // No thread could be started: fall back to inline mapping (still correct).
-        None => Mapping::Inline(Box::new((setup.local_mapper(), setup.loop_closer()))),
+        None => setup.inline(),
     }
 }
 
@@ -189,7 +195,7 @@ fn spawn_loop_closer(
             while let Ok(kf) = rx.recv() {
                 n += 1;
                 crate::runtime::faults::maybe_panic("panic:loop_closing", n);
-                worker.process(&map, &places, kf);
+                worker.process_shared(&map, &places, kf);
             }
             worker.finish()
         })
@@ -197,12 +203,16 @@ fn spawn_loop_closer(
     Some((tx, handle))
 }
 
-/// Loop detection and correction for one keyframe at a time, and the full BA after a loop.
-struct LoopWorker {
+/// "Close loops, then global BA" for one mapped keyframe at a time: the one implementation
+/// behind both modes. Inline (deterministic) the full BA runs at once on the caller's
+/// thread; threaded it runs on a background thread of its own while tracking and mapping
+/// go on.
+pub(super) struct LoopWorker {
     closer: LoopCloser,
     camera: PinholeRadtan,
     scales: Vec<f64>,
     global_ba_after_loop: bool,
+    global_ba_iterations: usize,
     timer: StageTimer,
     gba: Option<JoinHandle<()>>,
 }
@@ -214,52 +224,103 @@ impl LoopWorker {
             camera: setup.camera,
             scales: setup.scales.clone(),
             global_ba_after_loop: setup.global_ba_after_loop,
+            global_ba_iterations: setup.global_ba_iterations,
             timer: StageTimer::with_capacity(64),
             gba: None,
         }
     }
 
-    fn process(&mut self, map: &Arc<Mutex<Map>>, places: &Mutex<PlaceIndex>, kf: KeyFrameId) {
+    /// Loop detection and, when a loop is found, its correction; true when one was closed.
+    fn close(&mut self, map: &mut Map, places: &PlaceIndex, kf: KeyFrameId) -> bool {
+        let t = Instant::now();
+        let closed = self.closer.process(map, places, kf).is_some();
+        if closed {
+            self.timer.record(t.elapsed());
+        }
+        closed
+    }
+
+    fn global_ba_job(&self, map: &Map) -> Option<GlobalBaJob> {
+        GlobalBaJob::prepare(map, &self.camera, &self.scales, self.global_ba_iterations)
+    }
+
+    /// Deterministic mode, with the map already locked by the caller: close, then the full
+    /// BA inline. Returns whether a loop was closed.
+    pub(super) fn process_inline(
+        &mut self,
+        map: &mut Map,
+        places: &PlaceIndex,
+        kf: KeyFrameId,
+    ) -> bool {
+        let closed = self.close(map, places, kf);
+        if closed && self.global_ba_after_loop {
+            if let Some(mut job) = self.global_ba_job(map) {
+                job.solve();
+                job.merge(map);
+            }
+        }
+        closed
+    }
+
+    /// Threaded mode: close under the map lock, then the full BA on its own thread, copied
+    /// under a short lock, solved without it, merged under a short lock (dropped if another
+    /// loop moved the map meanwhile).
+    fn process_shared(
+        &mut self,
+        map: &Arc<Mutex<Map>>,
+        places: &Mutex<PlaceIndex>,
+        kf: KeyFrameId,
+    ) {
         let closed = {
             let mut m = lock(map);
             let p = places.lock().unwrap_or_else(|e| e.into_inner());
-            let tl = Instant::now();
-            let closed = self.closer.process(&mut m, &p, kf).is_some();
-            if closed {
-                self.timer.record(tl.elapsed());
-            }
-            closed
+            self.close(&mut m, &p, kf)
         };
-        if closed && self.global_ba_after_loop {
-            // A full BA on its own thread: copied under a short lock, solved without it,
-            // merged under a short lock (dropped if another loop moved the map meanwhile);
-            // tracking and mapping go on.
-            if let Some(h) = self.gba.take() {
-                let _ = h.join();
-            }
-            let (map2, scales2, camera) = (Arc::clone(map), self.scales.clone(), self.camera);
-            self.gba = std::thread::Builder::new()
-                .name("global-ba".into())
-                .spawn(move || {
-                    let job = GlobalBaJob::prepare(&lock(&map2), &camera, &scales2, 10);
-                    if let Some(mut job) = job {
-                        job.solve();
-                        job.merge(&mut lock(&map2));
-                    }
-                })
-                .ok();
+        if !(closed && self.global_ba_after_loop) {
+            return;
         }
+        if let Some(h) = self.gba.take() {
+            let _ = h.join();
+        }
+        let job_map = Arc::clone(map);
+        let job = self.global_ba_job(&lock(map));
+        self.gba = std::thread::Builder::new()
+            .name("global-ba".into())
+            .spawn(move || {
+                if let Some(mut job) = job {
+                    job.solve();
+                    job.merge(&mut lock(&job_map));
+                }
+            })
+            .ok();
     }
 
-    fn finish(mut self) -> LoopStats {
+    /// The loop figures so far (live in the inline mode).
+    pub(super) fn counts(&self) -> (usize, usize) {
+        (self.closer.loops_closed, self.closer.revisits_closed)
+    }
+
+    pub(super) fn history(&self) -> &[crate::loop_closing::LoopRecord] {
+        &self.closer.history
+    }
+
+    /// Waits for a running full BA and hands over the figures (the timer is taken).
+    fn take_stats(&mut self) -> LoopStats {
         if let Some(h) = self.gba.take() {
             let _ = h.join();
         }
         LoopStats {
-            timer: Some(self.timer),
+            timer: Some(std::mem::replace(
+                &mut self.timer,
+                StageTimer::with_capacity(0),
+            )),
             loops_closed: self.closer.loops_closed,
             revisits_closed: self.closer.revisits_closed,
-            history: self.closer.history,
+            history: self.closer.history.clone(),
         }
+    }
+
+    fn finish(mut self) -> LoopStats {
+        self.take_stats()
     }
 }
