@@ -29,7 +29,9 @@ fn optimize(c: &mut Criterion) {
         obs.push(u);
     }
     let inv = vec![1.0; pts.len()];
-    let ba = MotionOnlyBa::new(520.0, 520.0, 320.0, 240.0);
+    let ba = MotionOnlyBa::new(sdslam::geometry::Intrinsics::new(
+        520.0, 520.0, 320.0, 240.0,
+    ));
     let start = CameraFromWorld(se3_retract(
         &pose.0,
         &[0.01, -0.01, 0.005, 0.03, 0.02, -0.02],

@@ -47,7 +47,9 @@ fn extraction_allocates_nothing_after_the_first_frame() {
 
 #[test]
 fn motion_only_ba_allocates_nothing() {
-    let ba = MotionOnlyBa::new(520.0, 520.0, 320.0, 240.0);
+    let ba = MotionOnlyBa::new(sdslam::geometry::Intrinsics::new(
+        520.0, 520.0, 320.0, 240.0,
+    ));
     let pts: Vec<Vector3<f64>> = (0..300)
         .map(|i| {
             Vector3::new(

@@ -20,6 +20,11 @@ pub struct PinholeRadtan {
 }
 
 impl PinholeRadtan {
+    /// The pinhole part (what the solvers use on rectified images).
+    pub fn intrinsics(&self) -> crate::geometry::Intrinsics {
+        crate::geometry::Intrinsics::new(self.fx, self.fy, self.cx, self.cy)
+    }
+
     /// A distortion-free pinhole camera.
     pub fn pinhole(fx: f64, fy: f64, cx: f64, cy: f64, width: u32, height: u32) -> Self {
         PinholeRadtan {

@@ -4,6 +4,7 @@
 mod align;
 mod cloud;
 pub mod epipolar;
+mod intrinsics;
 pub mod pnp;
 mod pose;
 pub mod ransac;
@@ -13,4 +14,5 @@ pub mod two_view;
 
 pub use align::{horn, umeyama};
 pub use cloud::CloudPoint;
+pub use intrinsics::Intrinsics;
 pub use pose::{CameraFromWorld, Se3, Sim3, WorldFromCamera};

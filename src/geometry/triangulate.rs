@@ -69,11 +69,8 @@ pub struct TriangulationChecks {
     /// sigma² (ORB-SLAM: 5.991 sigma²).
     pub max_sq_error_1: f64,
     pub max_sq_error_2: f64,
-    /// Focal lengths and principal point of the (undistorted) pinhole camera(s).
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
+    /// The (undistorted) pinhole camera of both views.
+    pub k: super::Intrinsics,
 }
 
 /// Triangulates undistorted pixels `u1`, `u2` and applies parallax, cheirality and reprojection
@@ -84,8 +81,7 @@ pub fn triangulate_checked(
     t_21: &Se3,
     c: &TriangulationChecks,
 ) -> Result<Vector3<f64>, TriangulationReject> {
-    let n = |u: &Vector2<f64>| Vector2::new((u.x - c.cx) / c.fx, (u.y - c.cy) / c.fy);
-    let (x1, x2) = (n(u1), n(u2));
+    let (x1, x2) = (c.k.normalise(u1), c.k.normalise(u2));
     let ray1 = Vector3::new(x1.x, x1.y, 1.0);
     let ray2_c2 = Vector3::new(x2.x, x2.y, 1.0);
     let ray2 = t_21.rotation.inverse() * ray2_c2;
@@ -98,7 +94,7 @@ pub fn triangulate_checked(
     if p.z <= 0.0 || p2.z <= 0.0 {
         return Err(TriangulationReject::BehindCamera);
     }
-    let proj = |q: &Vector3<f64>| Vector2::new(c.fx * q.x / q.z + c.cx, c.fy * q.y / q.z + c.cy);
+    let proj = |q: &Vector3<f64>| c.k.project(q);
     if (proj(&p) - u1).norm_squared() > c.max_sq_error_1
         || (proj(&p2.coords) - u2).norm_squared() > c.max_sq_error_2
     {
@@ -118,10 +114,7 @@ mod tests {
             max_cos_parallax: 0.9998,
             max_sq_error_1: 5.991,
             max_sq_error_2: 5.991,
-            fx: 500.0,
-            fy: 500.0,
-            cx: 320.0,
-            cy: 240.0,
+            k: crate::geometry::Intrinsics::new(500.0, 500.0, 320.0, 240.0),
         }
     }
 

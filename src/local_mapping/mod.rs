@@ -260,10 +260,7 @@ impl LocalMapper {
                     max_cos_parallax: 0.9998,
                     max_sq_error_1: 5.991 * self.sigma2[a.octave as usize],
                     max_sq_error_2: 5.991 * self.sigma2[b.octave as usize],
-                    fx: self.camera.fx,
-                    fy: self.camera.fy,
-                    cx: self.camera.cx,
-                    cy: self.camera.cy,
+                    k: self.camera.intrinsics(),
                 };
                 let Ok(p1) = triangulate_checked(
                     &Vector2::new(a.ux as f64, a.uy as f64),
@@ -336,10 +333,7 @@ impl LocalMapper {
             pose_index.insert(l, i as u32);
         }
         let p = &mut self.problem;
-        p.fx = self.camera.fx;
-        p.fy = self.camera.fy;
-        p.cx = self.camera.cx;
-        p.cy = self.camera.cy;
+        p.k = self.camera.intrinsics();
         p.points.clear();
         p.observations.clear();
         p.excluded.clear();

@@ -41,10 +41,7 @@ impl GlobalBaJob {
             .map(|(i, &k)| (k, i as u32))
             .collect();
         let mut p = BaProblem {
-            fx: camera.fx,
-            fy: camera.fy,
-            cx: camera.cx,
-            cy: camera.cy,
+            k: camera.intrinsics(),
             ..Default::default()
         };
         for (i, &k) in keyframes.iter().enumerate() {

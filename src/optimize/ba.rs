@@ -26,10 +26,7 @@ pub struct BaObservation {
 /// pinhole.
 #[derive(Clone, Debug, Default)]
 pub struct BaProblem {
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
+    pub k: crate::geometry::Intrinsics,
     pub poses: Vec<CameraFromWorld>,
     pub pose_fixed: Vec<bool>,
     pub points: Vec<Vector3<f64>>,
@@ -47,8 +44,8 @@ impl BaProblem {
             return f64::INFINITY;
         }
         let r = Vector2::new(
-            self.fx * pc.x / pc.z + self.cx - ob.uv.x,
-            self.fy * pc.y / pc.z + self.cy - ob.uv.y,
+            self.k.fx * pc.x / pc.z + self.k.cx - ob.uv.x,
+            self.k.fy * pc.y / pc.z + self.k.cy - ob.uv.y,
         );
         r.norm_squared() * ob.inv_sigma2
     }
@@ -193,8 +190,8 @@ impl BundleAdjuster {
                 1e6
             } else {
                 let r = Vector2::new(
-                    p.fx * pc.x / pc.z + p.cx - ob.uv.x,
-                    p.fy * pc.y / pc.z + p.cy - ob.uv.y,
+                    p.k.fx * pc.x / pc.z + p.k.cx - ob.uv.x,
+                    p.k.fy * pc.y / pc.z + p.k.cy - ob.uv.y,
                 );
                 r.norm_squared() * ob.inv_sigma2
             };
@@ -327,12 +324,12 @@ impl BundleAdjuster {
                     continue;
                 }
                 let r = Vector2::new(
-                    p.fx * pc.x / pc.z + p.cx - ob.uv.x,
-                    p.fy * pc.y / pc.z + p.cy - ob.uv.y,
+                    p.k.fx * pc.x / pc.z + p.k.cx - ob.uv.x,
+                    p.k.fy * pc.y / pc.z + p.k.cy - ob.uv.y,
                 );
                 let e2 = r.norm_squared() * ob.inv_sigma2;
                 let w = ob.inv_sigma2 * robust.map_or(1.0, |d2| huber_weight(e2, d2));
-                let jpi = projection_jacobian(&pc, p.fx, p.fy);
+                let jpi = projection_jacobian(&pc, p.k.fx, p.k.fy);
                 let jl = jpi * pose.0.rotation.to_rotation_matrix().matrix();
                 let j = ob.point as usize;
                 self.hll[j] += jl.transpose() * jl * w;

@@ -7,7 +7,7 @@ use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 
 use super::lie::{point_pose_jacobian, projection_jacobian, se3_retract};
 use super::robust::{huber_cost, huber_weight};
-use crate::geometry::CameraFromWorld;
+use crate::geometry::{CameraFromWorld, Intrinsics};
 
 pub use crate::config::MotionOnlyConfig;
 
@@ -15,20 +15,14 @@ pub use crate::config::MotionOnlyConfig;
 #[derive(Clone, Debug)]
 pub struct MotionOnlyBa {
     pub config: MotionOnlyConfig,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
+    pub k: Intrinsics,
 }
 
 impl MotionOnlyBa {
-    pub fn new(fx: f64, fy: f64, cx: f64, cy: f64) -> Self {
+    pub fn new(k: Intrinsics) -> Self {
         MotionOnlyBa {
             config: MotionOnlyConfig::default(),
-            fx,
-            fy,
-            cx,
-            cy,
+            k,
         }
     }
 
@@ -44,8 +38,8 @@ impl MotionOnlyBa {
             return None;
         }
         let r = Vector2::new(
-            self.fx * pc.x / pc.z + self.cx - obs.x,
-            self.fy * pc.y / pc.z + self.cy - obs.y,
+            self.k.fx * pc.x / pc.z + self.k.cx - obs.x,
+            self.k.fy * pc.y / pc.z + self.k.cy - obs.y,
         );
         Some((r, pc))
     }
@@ -118,7 +112,8 @@ impl MotionOnlyBa {
                         } else {
                             1.0
                         };
-                    let j = projection_jacobian(&pc, self.fx, self.fy) * point_pose_jacobian(&pc);
+                    let j =
+                        projection_jacobian(&pc, self.k.fx, self.k.fy) * point_pose_jacobian(&pc);
                     h += j.transpose() * j * w;
                     g += j.transpose() * r * w;
                 }
@@ -181,7 +176,7 @@ mod tests {
             Translation3::new(0.1, -0.2, 0.3),
             UnitQuaternion::from_euler_angles(0.1, 0.2, -0.1),
         ));
-        let ba = MotionOnlyBa::new(520.0, 520.0, 320.0, 240.0);
+        let ba = MotionOnlyBa::new(Intrinsics::new(520.0, 520.0, 320.0, 240.0));
         let mut s = 11u64;
         let mut rnd = || {
             s = s

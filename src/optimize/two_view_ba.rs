@@ -25,10 +25,7 @@ pub fn refine_two_view(
     }
     let inv_s2 = 1.0 / (sigma * sigma);
     let mut p = BaProblem {
-        fx: k[(0, 0)],
-        fy: k[(1, 1)],
-        cx: k[(0, 2)],
-        cy: k[(1, 2)],
+        k: crate::geometry::Intrinsics::new(k[(0, 0)], k[(1, 1)], k[(0, 2)], k[(1, 2)]),
         poses: vec![CameraFromWorld(Se3::identity()), CameraFromWorld(m.t_21)],
         pose_fixed: vec![true, false],
         points: idx.iter().filter_map(|&i| m.points[i]).collect(),

@@ -23,7 +23,7 @@ use crate::runtime::ForegroundGate;
 use crate::place_recognition::{default_vocabulary, KeyFrameDatabase, Vocabulary};
 use crate::runtime::semidense_worker::SemiDenseWorker;
 use crate::runtime::StageTimer;
-use crate::semidense::{Intrinsics, SemiDenseMapper};
+use crate::semidense::SemiDenseMapper;
 use crate::tracking::{InitAttempt, Initializer, TrackedFrame, Tracker, TrackingState};
 use std::collections::HashMap;
 
@@ -91,9 +91,9 @@ fn lock(map: &Mutex<Map>) -> MutexGuard<'_, Map> {
     map.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// Frames a map of at most 5 keyframes is kept while tracking is lost, trying to relocalise
-/// in it, before it is discarded and initialisation starts over (one second at 30 fps).
-
+/// The pipeline for one camera: ORB extraction, tracking and the keyframe decision on the
+/// caller's thread; local mapping, loop closing and semi-dense mapping inline (deterministic)
+/// or on their own threads; the place index shared by relocalisation and loop detection.
 pub struct System {
     pub camera: PinholeRadtan,
     extractor: OrbExtractor,
@@ -196,12 +196,7 @@ impl System {
             setup.inline()
         };
         let semidense = if config.semidense.enabled {
-            let k = Intrinsics {
-                fx: camera.fx,
-                fy: camera.fy,
-                cx: camera.cx,
-                cy: camera.cy,
-            };
+            let k = camera.intrinsics();
             let mut mapper = Box::new(SemiDenseMapper::new(
                 k,
                 w,

@@ -11,46 +11,7 @@ use super::gradients::{
 use super::scan::{scan, Probe, Walk};
 use crate::geometry::Se3;
 
-/// Pinhole intrinsics of the (undistorted) keyframe images.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Intrinsics {
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-}
-
-impl Intrinsics {
-    pub fn k(&self) -> Matrix3<f64> {
-        Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
-    }
-
-    /// The pixel-to-pixel form of `t_ji` (camera i to camera j): `(K R K^-1, K t)`, so a pixel
-    /// x of i at inverse depth rho lands at the homogeneous pixel `K R K^-1 x + rho K t` of j
-    /// (that is K X_j / depth_i, whose third coordinate is depth_j / depth_i).
-    pub fn pixel_transform(&self, t_ji: &Se3) -> (Matrix3<f64>, Vector3<f64>) {
-        let km = self.k();
-        let kinv = Matrix3::new(
-            1.0 / self.fx,
-            0.0,
-            -self.cx / self.fx,
-            0.0,
-            1.0 / self.fy,
-            -self.cy / self.fy,
-            0.0,
-            0.0,
-            1.0,
-        );
-        let r = t_ji.rotation.to_rotation_matrix();
-        (km * r.matrix() * kinv, km * t_ji.translation.vector)
-    }
-
-    /// The unit-depth ray `K^-1 x` through pixel (u, v).
-    #[inline]
-    pub fn ray(&self, u: f64, v: f64) -> Vector3<f64> {
-        Vector3::new((u - self.cx) / self.fx, (v - self.cy) / self.fy, 1.0)
-    }
-}
+pub use crate::geometry::Intrinsics;
 
 /// Per-pixel thresholds of the search, derived once from the config.
 #[derive(Clone, Copy, Debug, PartialEq)]

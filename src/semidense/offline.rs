@@ -14,7 +14,7 @@ use crate::geometry::WorldFromCamera;
 use crate::local_mapping::LocalMapper;
 use crate::map::{KeyFrameId, Map, MapConfig};
 
-use super::{Intrinsics, SemiDenseMapper};
+use super::SemiDenseMapper;
 
 pub struct Densifier {
     extractor: OrbExtractor,
@@ -43,12 +43,7 @@ impl Densifier {
             max_map_points: config.map.max_map_points,
             ..MapConfig::default()
         });
-        let k = Intrinsics {
-            fx: camera.fx,
-            fy: camera.fy,
-            cx: camera.cx,
-            cy: camera.cy,
-        };
+        let k = camera.intrinsics();
         Densifier {
             features: Features::with_capacity(max_features),
             extractor,

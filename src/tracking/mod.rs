@@ -134,7 +134,7 @@ impl Tracker {
             config: TrackingConfig::default(),
             relocalisation: Default::default(),
             state: TrackingState::NotInitialised,
-            motion_ba: MotionOnlyBa::new(camera.fx, camera.fy, camera.cx, camera.cy),
+            motion_ba: MotionOnlyBa::new(camera.intrinsics()),
             camera,
             scales,
             inv_sigma2,

@@ -104,10 +104,7 @@ pub fn ba_problem(
     fixed[0] = true;
     fixed[1] = true;
     let truth = BaProblem {
-        fx,
-        fy,
-        cx,
-        cy,
+        k: sdslam::geometry::Intrinsics::new(fx, fy, cx, cy),
         poses: poses.clone(),
         pose_fixed: fixed.clone(),
         points: points.clone(),
