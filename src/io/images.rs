@@ -5,7 +5,7 @@ use std::path::Path;
 use crate::error::{Error, Result};
 
 fn encode_err(path: &Path, e: image::ImageError) -> Error {
-    Error::Invalid(format!("{}: cannot encode PNG: {e}", path.display()))
+    Error::format(path, e)
 }
 
 /// Writes an RGB image as PNG (atomically).
