@@ -43,7 +43,28 @@ pub struct Features {
     pub descriptors: Vec<Descriptor>,
 }
 
+/// Keypoints and their descriptors (same length), borrowed: one side of a matching search,
+/// from a frame's [`Features`] or a keyframe's stored arrays.
+#[derive(Clone, Copy, Debug)]
+pub struct FeatureView<'a> {
+    pub keypoints: &'a [KeyPoint],
+    pub descriptors: &'a [Descriptor],
+}
+
+impl<'a> FeatureView<'a> {
+    pub fn new(keypoints: &'a [KeyPoint], descriptors: &'a [Descriptor]) -> Self {
+        FeatureView {
+            keypoints,
+            descriptors,
+        }
+    }
+}
+
 impl Features {
+    pub fn view(&self) -> FeatureView<'_> {
+        FeatureView::new(&self.keypoints, &self.descriptors)
+    }
+
     pub fn with_capacity(n: usize) -> Self {
         Features {
             keypoints: Vec::with_capacity(n),

@@ -44,8 +44,7 @@ pub fn write_atomic_with(
 
 /// Serialises `value` as pretty JSON and writes it atomically.
 pub fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
-    let mut s = serde_json::to_string_pretty(value)
-        .map_err(|e| Error::format(path, e))?;
+    let mut s = serde_json::to_string_pretty(value).map_err(|e| Error::format(path, e))?;
     s.push('\n');
     write_atomic(path, s.as_bytes())
 }

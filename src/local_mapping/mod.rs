@@ -9,10 +9,11 @@ mod fusion;
 use nalgebra::{Matrix3, Vector2};
 
 use crate::camera_model::PinholeRadtan;
+use crate::features::FeatureView;
 use crate::geometry::epipolar::fundamental_from_poses;
 use crate::geometry::triangulate::{triangulate_checked, TriangulationChecks};
 use crate::map::{KeyFrameId, Map, MapPointId};
-use crate::matching::search::search_for_triangulation;
+use crate::matching::search::{search_for_triangulation, EpipolarSearch};
 use crate::optimize::{BaObservation, BaOptions, BaProblem, BundleAdjuster};
 
 pub use crate::config::LocalMappingConfig;
@@ -239,17 +240,18 @@ impl LocalMapper {
             });
             let free1: Vec<bool> = k1.points.iter().map(|p| p.is_none()).collect();
             let free2: Vec<bool> = k2.points.iter().map(|p| p.is_none()).collect();
+            let search = EpipolarSearch {
+                f21: &f21,
+                epipole2: epipole,
+                sigma2: &self.sigma2,
+                check_orientation: true,
+            };
             search_for_triangulation(
-                &k1.keypoints,
-                &k1.descriptors,
+                FeatureView::new(&k1.keypoints, &k1.descriptors),
                 &free1,
-                &k2.keypoints,
-                &k2.descriptors,
+                FeatureView::new(&k2.keypoints, &k2.descriptors),
                 &free2,
-                &f21,
-                epipole,
-                &self.sigma2,
-                true,
+                &search,
                 &mut self.pairs,
             );
             let t_21 = k2.t_cw.0 * t1.0.inverse();

@@ -6,25 +6,55 @@
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use super::{hamming, FeatureGrid, RotationHistogram, TH_HIGH, TH_LOW};
-use crate::features::{Descriptor, KeyPoint};
+use crate::features::{Descriptor, FeatureView, KeyPoint};
+
+/// The window search of initialisation: pixels around each reference keypoint, the ratio
+/// test, and the rotation-consistency histogram.
+#[derive(Clone, Copy, Debug)]
+pub struct WindowSearch {
+    pub window: f32,
+    pub ratio: f32,
+    pub check_orientation: bool,
+}
+
+/// Search by projection: radius in pixels at level 0 (scaled by each level's factor) and the
+/// ratio test.
+#[derive(Clone, Copy, Debug)]
+pub struct ProjectionSearch<'a> {
+    pub scales: &'a [f64],
+    pub radius: f32,
+    pub ratio: f32,
+}
+
+/// Epipolar search between two keyframes: `f21` maps undistorted pixels of 1 to lines in 2,
+/// the epipole in 2 (when in front of camera 1), sigma² per level, and the rotation check.
+#[derive(Clone, Copy, Debug)]
+pub struct EpipolarSearch<'a> {
+    pub f21: &'a Matrix3<f64>,
+    pub epipole2: Option<Vector2<f64>>,
+    pub sigma2: &'a [f64],
+    pub check_orientation: bool,
+}
 
 /// Matches keypoints of a reference frame to a new frame within a window around each reference
 /// keypoint, at the same pyramid level (ORB-SLAM uses only the finest level and doubles the
 /// feature count during initialisation instead; matching every level within its octave gives the
 /// same density without a second extractor). Returns, per reference keypoint, the matched index
 /// in the new frame.
-#[allow(clippy::too_many_arguments)]
 pub fn search_for_initialization(
-    ref_kps: &[KeyPoint],
-    ref_desc: &[Descriptor],
-    cur_kps: &[KeyPoint],
-    cur_desc: &[Descriptor],
+    reference: FeatureView,
+    current: FeatureView,
     cur_grid: &FeatureGrid,
-    window: f32,
-    ratio: f32,
-    check_orientation: bool,
+    search: WindowSearch,
     out: &mut Vec<Option<u32>>,
 ) -> usize {
+    let (ref_kps, ref_desc) = (reference.keypoints, reference.descriptors);
+    let (cur_kps, cur_desc) = (current.keypoints, current.descriptors);
+    let WindowSearch {
+        window,
+        ratio,
+        check_orientation,
+    } = search;
     out.clear();
     out.resize(ref_kps.len(), None);
     let mut best_of_cur: Vec<(u32, u32)> = vec![(u32::MAX, u32::MAX); cur_kps.len()]; // (dist, ref idx)
@@ -86,18 +116,20 @@ pub struct ProjectedPoint {
 /// radius_factor` whose octave is within one level of the prediction, by Hamming distance
 /// (<= TH_HIGH, ratio `ratio` against the second best on another level... as ORB-SLAM). Writes
 /// the matched point id per keypoint into `matches` (only where `None`). Returns new matches.
-#[allow(clippy::too_many_arguments)]
 pub fn search_by_projection(
     points: &[ProjectedPoint],
-    kps: &[KeyPoint],
-    desc: &[Descriptor],
+    frame: FeatureView,
     grid: &FeatureGrid,
-    scales: &[f64],
-    radius: f32,
-    ratio: f32,
+    search: ProjectionSearch,
     matches: &mut [Option<u32>],
     scratch: &mut Vec<u32>,
 ) -> usize {
+    let (kps, desc) = (frame.keypoints, frame.descriptors);
+    let ProjectionSearch {
+        scales,
+        radius,
+        ratio,
+    } = search;
     let mut n = 0;
     let top = scales.len().saturating_sub(1) as u8;
     for p in points {
@@ -200,20 +232,22 @@ impl Claims {
 /// vectorises), and descriptors are compared only within the band of the widest level: about
 /// 5% of the keypoints instead of all of them. The exact tests then run on those, in index
 /// order, so the pairs are those of a full scan.
-#[allow(clippy::too_many_arguments)]
 pub fn search_for_triangulation(
-    kps1: &[KeyPoint],
-    desc1: &[Descriptor],
+    one: FeatureView,
     free1: &[bool],
-    kps2: &[KeyPoint],
-    desc2: &[Descriptor],
+    two: FeatureView,
     free2: &[bool],
-    f21: &Matrix3<f64>,
-    epipole2: Option<Vector2<f64>>,
-    sigma2: &[f64],
-    check_orientation: bool,
+    search: &EpipolarSearch,
     out: &mut Vec<(u32, u32)>,
 ) {
+    let (kps1, desc1) = (one.keypoints, one.descriptors);
+    let (kps2, desc2) = (two.keypoints, two.descriptors);
+    let EpipolarSearch {
+        f21,
+        epipole2,
+        sigma2,
+        check_orientation,
+    } = *search;
     out.clear();
     let mut claims = Claims::new(kps2.len());
     // The free keypoints of 2, their positions apart (structure of arrays).
@@ -357,8 +391,18 @@ mod tests {
             let r = nalgebra::Rotation3::from_euler_angles(0.02, -0.03, 0.01);
             let f21 = kinv.transpose() * skew(t) * r.matrix() * kinv;
             let mut out = Vec::new();
+            let search = EpipolarSearch {
+                f21: &f21,
+                epipole2: epipole,
+                sigma2: &sigma2,
+                check_orientation: false,
+            };
             search_for_triangulation(
-                &kps1, &desc1, &free1, &kps2, &desc2, &free2, &f21, epipole, &sigma2, false,
+                FeatureView::new(&kps1, &desc1),
+                &free1,
+                FeatureView::new(&kps2, &desc2),
+                &free2,
+                &search,
                 &mut out,
             );
             let expect = brute_force(&kps1, &desc1, &kps2, &desc2, &free2, &f21, epipole, &sigma2);

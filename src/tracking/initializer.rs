@@ -4,9 +4,10 @@
 use nalgebra::{Matrix3, Vector2};
 
 use super::frame::TrackedFrame;
+use crate::features::FeatureView;
 use crate::features::Features;
 use crate::geometry::two_view::{initialize, TwoViewConfig, TwoViewError, TwoViewMotion};
-use crate::matching::search::search_for_initialization;
+use crate::matching::search::{search_for_initialization, WindowSearch};
 use crate::matching::FeatureGrid;
 use crate::optimize::refine_two_view;
 
@@ -150,15 +151,17 @@ impl Initializer {
             }
             return InitAttempt::NewReference;
         };
+        // ORB-SLAM's initialisation search: a 100 px window, ratio 0.9, rotation check.
+        let search = WindowSearch {
+            window: 100.0,
+            ratio: 0.9,
+            check_orientation: true,
+        };
         let n = search_for_initialization(
-            &r.keypoints,
-            &r.descriptors,
-            &f.features.keypoints,
-            &f.features.descriptors,
+            FeatureView::new(&r.keypoints, &r.descriptors),
+            f.features.view(),
             &f.grid,
-            100.0,
-            0.9,
-            true,
+            search,
             &mut self.matches,
         );
         if n < self.min_matches {

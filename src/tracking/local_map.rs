@@ -4,7 +4,7 @@
 
 use super::{TrackedFrame, Tracker};
 use crate::map::{KeyFrameId, Map, MapPointId};
-use crate::matching::search::{search_by_projection, ProjectedPoint};
+use crate::matching::search::{search_by_projection, ProjectedPoint, ProjectionSearch};
 
 #[derive(Default)]
 pub struct LocalMap {
@@ -150,14 +150,18 @@ impl LocalMap {
         self.matches.clear();
         self.matches
             .extend(f.points.iter().map(|p| p.map(|_| u32::MAX)));
+        // ORB-SLAM's local-map search: radius 1 (times the level's scale and the viewing
+        // angle's factor), ratio 0.8.
+        let search = ProjectionSearch {
+            scales: &t.scales,
+            radius: 1.0,
+            ratio: 0.8,
+        };
         search_by_projection(
             &self.projected,
-            &f.features.keypoints,
-            &f.features.descriptors,
+            f.features.view(),
             &f.grid,
-            &t.scales,
-            1.0,
-            0.8,
+            search,
             &mut self.matches,
             &mut self.scratch,
         );

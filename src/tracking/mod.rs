@@ -16,7 +16,7 @@ pub use initializer::{InitAttempt, Initializer};
 use crate::camera_model::PinholeRadtan;
 use crate::geometry::{CameraFromWorld, Se3};
 use crate::map::{KeyFrameId, Map};
-use crate::matching::search::{search_by_projection, ProjectedPoint};
+use crate::matching::search::{search_by_projection, ProjectedPoint, ProjectionSearch};
 use crate::matching::{hamming, RotationHistogram, TH_LOW};
 use crate::optimize::MotionOnlyBa;
 
@@ -233,14 +233,16 @@ impl Tracker {
             let m = &mut self.matches;
             m.clear();
             m.resize(f.features.len(), None);
+            let search = ProjectionSearch {
+                scales: &self.scales,
+                radius,
+                ratio: 0.9,
+            };
             search_by_projection(
                 &self.projected,
-                &f.features.keypoints,
-                &f.features.descriptors,
+                f.features.view(),
                 &f.grid,
-                &self.scales,
-                radius,
-                0.9,
+                search,
                 m,
                 &mut self.scratch,
             );

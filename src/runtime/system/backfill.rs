@@ -3,7 +3,7 @@
 //! (doing all of them at once took ~15 ms and made the initialising frame miss its deadline).
 
 use super::*;
-use crate::matching::search::{search_by_projection, ProjectedPoint};
+use crate::matching::search::{search_by_projection, ProjectedPoint, ProjectionSearch};
 use nalgebra::Vector3;
 
 /// Pending frames tracked per processed frame (each ~0.5 ms); 30 pending frames are done
@@ -103,14 +103,17 @@ impl System {
             }
             bf.matches.clear();
             bf.matches.resize(tf.features.len(), None);
+            // The motion model's search (ORB-SLAM: 15 px, ratio 0.9).
+            let search = ProjectionSearch {
+                scales: &self.tracker.scales,
+                radius: self.tracker.config.motion_search_radius,
+                ratio: 0.9,
+            };
             search_by_projection(
                 &bf.projected,
-                &tf.features.keypoints,
-                &tf.features.descriptors,
+                tf.features.view(),
                 &tf.grid,
-                &self.tracker.scales,
-                15.0,
-                0.9,
+                search,
                 &mut bf.matches,
                 &mut bf.scratch,
             );
