@@ -149,13 +149,13 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
             .iter()
             .filter_map(|&t| pose_at(&poses, t, 0.02).copied())
             .collect();
-        if let Some(ate) = sdslam::eval::ate(gt, &kf_poses, 0.02, true) {
+        if let Some(alignment) = sdslam::eval::pose_alignment(gt, &kf_poses, 0.02) {
             let depth_truth = std::mem::replace(&mut opened.depth_truth, source::DepthTruth::None);
             let frames = depth_truth.load(&stamps, gt, info.width, info.height)?;
             if !frames.is_empty() {
                 report.semidense_accuracy = Some(sdslam::eval::cloud_accuracy(
                     &cloud,
-                    &ate.alignment,
+                    &alignment,
                     &calib.camera,
                     &frames,
                 ));

@@ -3,6 +3,10 @@
 //! command line needs (clap, plots, the progress bar, log output, the Rerun viewer), so a
 //! robot embedding the library does not pull them in.
 
+// Doc comments of the argument structs are clap's --help text (`OUT/depth/<timestamp>.png`
+// reads right there), not rustdoc HTML.
+#![allow(rustdoc::invalid_html_tags)]
+
 /// A line to stderr that never panics: a closed or full stderr (`2>/dev/full`, `| head -1`)
 /// must not cost a run its outputs.
 macro_rules! note {

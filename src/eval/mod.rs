@@ -4,9 +4,11 @@
 mod ate;
 mod cloud;
 pub mod orb_quality;
+mod pose_alignment;
 mod rpe;
 
 pub use crate::geometry::umeyama;
 pub use ate::{associate, ate, AteResult, TimedPose};
 pub use cloud::{cloud_accuracy, CloudAccuracy, DepthFrame};
+pub use pose_alignment::{pose_alignment, AXIS_POINT_M};
 pub use rpe::{rpe, RpeResult};

@@ -79,7 +79,7 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
     r.report.semidense_points = cloud.len();
     if let Some(sd) = r.system.semidense() {
         fill_semidense_report(&mut r.report, sd, finishing);
-        semidense_extras(s, &mut r.report, sd, &cloud, alignment.as_ref());
+        semidense_extras(s, &mut r.report, sd, &cloud, &keyframes);
     }
     Finished {
         keyframes,
@@ -210,7 +210,7 @@ fn semidense_extras(
     report: &mut Report,
     sd: &SemiDenseMapper,
     cloud: &[CloudPoint],
-    alignment: Option<&AteResult>,
+    keyframes: &[TimedPose],
 ) {
     if sd.stats.skipped_cut > 0 {
         note!(
@@ -225,7 +225,12 @@ fn semidense_extras(
             crate::densify::write_depth_maps(&out, sd, width, height)
         });
     }
-    let (Some(gt), Some(ate), false) = (&s.groundtruth, alignment, cloud.is_empty()) else {
+    let (Some(gt), false) = (&s.groundtruth, cloud.is_empty()) else {
+        return;
+    };
+    // The evaluation protocol's alignment: keyframe centres plus axis points (positions alone
+    // leave the rotation about a near-straight path free).
+    let Some(alignment) = sdslam::eval::pose_alignment(gt, keyframes, 0.02) else {
         return;
     };
     let stamps: Vec<f64> = sd.entries().iter().map(|e| e.timestamp).collect();
@@ -233,7 +238,7 @@ fn semidense_extras(
         Ok(frames) if !frames.is_empty() => {
             report.semidense_accuracy = Some(sdslam::eval::cloud_accuracy(
                 cloud,
-                &ate.alignment,
+                &alignment,
                 &s.calib.camera,
                 &frames,
             ));
