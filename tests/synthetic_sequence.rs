@@ -1,11 +1,8 @@
 //! The built-in sequence: deterministic, geometrically exact (poses and depth agree with the
-//! images), and replayable through the file-backed mock after `sdslam synth`.
-
-mod common;
+//! images), and replayable through the file-backed mock after `sdslam synth` (tests/cli.rs).
 
 use nalgebra::Vector3;
-use sdslam::camera::{Frame, FrameSource, FrameStatus, ImageListSource};
-use sdslam::io::read_tum_trajectory;
+use sdslam::camera::Frame;
 use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
 
 fn small() -> SyntheticConfig {
@@ -111,31 +108,4 @@ fn depth_is_positive_and_in_room_range() {
         .fold((f32::MAX, 0f32), |(a, b), &d| (a.min(d), b.max(d)));
     assert!(min > 0.3 && max < 10.0, "{min}..{max}");
     assert!(max / min > 3.0, "several depths expected: {min}..{max}");
-}
-
-#[test]
-fn synth_folder_replays_through_the_file_backed_mock() {
-    let d = tempfile::tempdir().unwrap();
-    let out = d.path().join("seq");
-    common::synth_folder(&out, 12, 5);
-    let mut src = ImageListSource::open(&out).unwrap();
-    assert_eq!(src.info().len, Some(12));
-    let seq = SyntheticSequence::new(SyntheticConfig {
-        frames: 12,
-        ..SyntheticConfig::default()
-    });
-    let (mut a, mut b) = (Frame::new(640, 480), Frame::new(640, 480));
-    for i in 0..12 {
-        assert_eq!(src.next_frame(&mut a).unwrap(), FrameStatus::Ready);
-        seq.render_frame(i, &mut b);
-        assert_eq!(a.rgb, b.rgb, "frame {i}: PNG replay must be lossless");
-        assert!((a.timestamp - b.timestamp).abs() < 1e-6);
-    }
-    let gt = read_tum_trajectory(&out.join("groundtruth.txt")).unwrap();
-    assert_eq!(gt.len(), 12);
-    let depth_list = std::fs::read_to_string(out.join("depth.txt")).unwrap();
-    assert_eq!(
-        depth_list.lines().filter(|l| !l.starts_with('#')).count(),
-        3
-    );
 }
