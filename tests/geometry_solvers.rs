@@ -262,3 +262,73 @@ fn two_view_general_scenes_select_f_and_recover_motion() {
     );
     assert!(median < 0.5 && max < 3.0, "median {median}, max {max}");
 }
+
+/// Forward motion down a corridor at low parallax (0.2-0.8 m, 1.7-6 degrees): the flow is
+/// radial and a wall or the floor can dominate the matches. Every returned motion must be the
+/// true one (translation within 10 deg, rotation within 0.5 deg, after two-view BA); refusing
+/// is allowed, guessing is not, and baselines from 0.3 m must be solved.
+#[test]
+fn two_view_forward_motion_at_low_parallax_is_right_or_refused() {
+    let (mut solved, mut cases, mut solved_long) = (0, 0, 0);
+    for seed in 0..60u64 {
+        let mut rng = Rng(seed * 104_729 + 3);
+        let noise = 0.5 + 0.5 * rng.f();
+        let baseline = 0.2 + 0.6 * (seed % 6) as f64 / 5.0;
+        let rot = UnitQuaternion::from_euler_angles(
+            rng.range(-0.01, 0.01),
+            rng.range(-0.01, 0.01),
+            rng.range(-0.005, 0.005),
+        );
+        let dir = Vector3::new(rng.range(-0.15, 0.15), rng.range(-0.1, 0.1), -1.0).normalize();
+        let truth = Se3::from_parts(Translation3::from(dir * baseline), rot);
+        // A corridor 3 m wide, floor 1.2 m below, ceiling 1.3 m above, end wall 15 m ahead:
+        // every point on one of five planes, as in a real corridor.
+        let (mut x1, mut x2) = (Vec::new(), Vec::new());
+        while x1.len() < 500 {
+            let u = Vector2::new(rng.range(20.0, 620.0), rng.range(20.0, 460.0));
+            let ray = Vector3::new((u.x - 320.0) / 520.0, (u.y - 240.0) / 520.0, 1.0);
+            let hits = [
+                (1.5 / ray.x, ray.x > 1e-6),
+                (-1.5 / ray.x, ray.x < -1e-6),
+                (1.2 / ray.y, ray.y > 1e-6),
+                (-1.3 / ray.y, ray.y < -1e-6),
+                (15.0, true),
+            ];
+            let depth = hits
+                .iter()
+                .filter(|h| h.1)
+                .map(|h| h.0)
+                .fold(f64::MAX, f64::min);
+            let p = ray * depth;
+            let q = truth * Point3::from(p);
+            let u2 = project(&q.coords);
+            if q.z < 0.5 || !in_image(&u2) {
+                continue;
+            }
+            x1.push(project(&p) + Vector2::new(rng.gauss(), rng.gauss()) * noise);
+            x2.push(u2 + Vector2::new(rng.gauss(), rng.gauss()) * noise);
+        }
+        let cfg = TwoViewConfig {
+            seed,
+            ..TwoViewConfig::default()
+        };
+        cases += 1;
+        let r = initialize(&x1, &x2, &k(), &cfg);
+        if let Ok(mut m) = r {
+            sdslam::optimize::refine_two_view(&mut m, &x1, &x2, &k(), 1.0);
+            let (re, te) = check_motion(&m.t_21, &truth);
+            assert!(
+                re < 0.5 && te < 10.0,
+                "seed {seed} ({:?}, baseline {baseline:.2} m): rotation {re:.2} deg, translation {te:.2} deg",
+                m.model
+            );
+            solved += 1;
+            solved_long += (baseline >= 0.3) as usize;
+        }
+    }
+    eprintln!("forward: {solved} of {cases} solved, {solved_long} of 50 with baseline >= 0.3 m");
+    assert!(
+        solved_long >= 48,
+        "only {solved_long} of 50 long baselines solved"
+    );
+}

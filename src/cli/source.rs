@@ -12,7 +12,7 @@ use sdslam::camera::{files::euroc_cam_dir, FrameSource, ImageListSource};
 use sdslam::camera_model::Calibration;
 use sdslam::eval::TimedPose;
 use sdslam::io::{load_calibration, read_tum_trajectory};
-use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
+use sdslam::synthetic::{Scenario, SyntheticConfig, SyntheticSequence};
 use sdslam::{Error, Result};
 
 /// An opened source with what the run needs to know about it.
@@ -144,8 +144,44 @@ impl DepthTruth {
     }
 }
 
-/// Opens SOURCE: `synthetic` (or none), `v4l2:/dev/videoN`, a TUM folder, a EuRoC folder, or an
-/// image folder with a timestamps file. A TUM folder's `camera.yaml` and EuRoC's
+/// The built-in sequence, or one of its stress scenes (`synthetic:NAME`).
+fn open_synthetic(
+    scene: Option<&str>,
+    calib: Option<&Path>,
+    frames: Option<usize>,
+) -> Result<OpenedSource> {
+    let mut cfg = SyntheticConfig::default();
+    if let Some(name) = scene {
+        cfg.scenario = Scenario::from_name(name).map_err(Error::Invalid)?;
+    }
+    if let Some(n) = frames {
+        cfg.frames = n.min(cfg.frames);
+    }
+    let calibration = match calib {
+        Some(p) => {
+            let c = load_calibration(p)?;
+            c.check_image_size(cfg.width, cfg.height, &p.display().to_string())?;
+            c
+        }
+        None => cfg.calibration(),
+    };
+    let seq = SyntheticSequence::new(cfg.clone());
+    let gt = seq.ground_truth();
+    Ok(OpenedSource {
+        source: Box::new(seq),
+        calibration,
+        calibration_name: calib
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|| "built-in synthetic camera".into()),
+        groundtruth: Some(gt),
+        depth_truth: DepthTruth::Synthetic(cfg),
+        live: None,
+    })
+}
+
+/// Opens SOURCE: `synthetic` (or none), `synthetic:NAME` (a stress scene, `sdslam synth
+/// --help`), `v4l2:/dev/videoN`, a TUM folder, a EuRoC folder, or an image folder with a
+/// timestamps file. A TUM folder's `camera.yaml` and EuRoC's
 /// `sensor.yaml` are used when `calib` is not given.
 pub fn open(
     spec: Option<&str>,
@@ -155,32 +191,8 @@ pub fn open(
 ) -> Result<OpenedSource> {
     match spec {
         Some(s) if s.starts_with("fakecam") => open_fake_camera(s, calib, frames, camera),
-        None | Some("synthetic") => {
-            let mut cfg = SyntheticConfig::default();
-            if let Some(n) = frames {
-                cfg.frames = n.min(cfg.frames);
-            }
-            let calibration = match calib {
-                Some(p) => {
-                    let c = load_calibration(p)?;
-                    c.check_image_size(cfg.width, cfg.height, &p.display().to_string())?;
-                    c
-                }
-                None => cfg.calibration(),
-            };
-            let seq = SyntheticSequence::new(cfg.clone());
-            let gt = seq.ground_truth();
-            Ok(OpenedSource {
-                source: Box::new(seq),
-                calibration,
-                calibration_name: calib
-                    .map(|p| p.display().to_string())
-                    .unwrap_or_else(|| "built-in synthetic camera".into()),
-                groundtruth: Some(gt),
-                depth_truth: DepthTruth::Synthetic(cfg),
-                live: None,
-            })
-        }
+        None | Some("synthetic") => open_synthetic(None, calib, frames),
+        Some(s) if s.starts_with("synthetic:") => open_synthetic(Some(&s[10..]), calib, frames),
         Some(s) if s.starts_with("v4l2:") || s.starts_with("libcamera:") => {
             let Some(calib_path) = calib else {
                 return Err(Error::Invalid(format!(

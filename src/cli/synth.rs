@@ -8,7 +8,7 @@ use clap::Args;
 
 use sdslam::camera::Frame;
 use sdslam::io::{write_atomic, write_depth_png, write_rgb_png, write_tum_trajectory};
-use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
+use sdslam::synthetic::{Scenario, SyntheticConfig, SyntheticSequence};
 use sdslam::{Error, Result};
 
 #[derive(Args, Debug)]
@@ -19,6 +19,11 @@ pub struct SynthArgs {
     /// Number of frames (the orbit always closes after the last frame).
     #[arg(long, default_value_t = 300)]
     frames: usize,
+    /// Scene and motion: desk (the default orbit), rotation, outward-loop (weakly textured
+    /// walls), forward, fast-blur, exposure-step, blackout. `sdslam run synthetic:NAME` runs
+    /// the same scene without writing it.
+    #[arg(long, default_value = "desk", value_parser = parse_scene)]
+    scene: Scenario,
     /// Write a ground-truth depth map every K frames (0: none).
     #[arg(long, default_value_t = 10)]
     depth_every: usize,
@@ -67,6 +72,7 @@ pub fn synth(a: SynthArgs) -> Result<()> {
     }
     let cfg = SyntheticConfig {
         frames: a.frames,
+        scenario: a.scene,
         ..SyntheticConfig::default()
     };
     let seq = SyntheticSequence::new(cfg.clone());
@@ -113,4 +119,8 @@ pub fn synth(a: SynthArgs) -> Result<()> {
     write_atomic(&a.out.join("camera.yaml"), calib.as_bytes())?;
     out!("wrote {} frames to {}", cfg.frames, a.out.display());
     Ok(())
+}
+
+fn parse_scene(s: &str) -> std::result::Result<Scenario, String> {
+    Scenario::from_name(s)
 }

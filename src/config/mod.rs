@@ -453,6 +453,11 @@ impl Config {
             ),
             ("initialisation.sigma", i.sigma),
             ("initialisation.min_parallax_deg", i.min_parallax_deg),
+            (
+                "initialisation.planar_tie_parallax_deg",
+                i.planar_tie_parallax_deg,
+            ),
+            ("initialisation.agreement_deg", i.agreement_deg),
             ("relocalisation.chi2", r.chi2),
             ("motion_only.chi2", m.chi2),
             ("loop_closing.revisit_path_ratio", c.revisit_path_ratio),
@@ -469,10 +474,17 @@ impl Config {
         let shares = [
             ("tracking.keyframe_ratio", t.keyframe_ratio),
             ("initialisation.h_selection_ratio", i.h_selection_ratio),
+            ("initialisation.min_good_share", i.min_good_share),
             ("relocalisation.probability", r.probability),
             ("local_mapping.min_found_ratio", l.min_found_ratio),
             ("local_mapping.redundancy", l.redundancy),
         ];
+        if !(i.cross_check_margin >= 1.0 && i.cross_check_margin.is_finite()) {
+            return bad(
+                "initialisation.cross_check_margin",
+                &format!("must be a number >= 1 (got {})", i.cross_check_margin),
+            );
+        }
         for (field, v) in shares {
             if !(v > 0.0 && v <= 1.0) {
                 return bad(field, &format!("must be in (0, 1] (got {v})"));

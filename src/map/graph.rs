@@ -2,6 +2,7 @@
 //! points), the spanning tree (repaired when a keyframe is erased) and the essential graph.
 
 use super::*;
+use crate::geometry::CameraFromWorld;
 
 impl Map {
     /// Recomputes `kf`'s covisibility edges (weight = shared points; edges of weight >= the
@@ -99,6 +100,12 @@ impl Map {
         let neighbours: Vec<KeyFrameId> = k.covisibles.iter().map(|&(f, _)| f).collect();
         let mut children = k.children.clone();
         let parent = k.parent;
+        if let Some(pk) = parent.and_then(|p| self.keyframes.get(p)) {
+            let t_child_parent = k.t_cw.0 * pk.t_cw.0.inverse();
+            if let Some(p) = parent {
+                self.tombstones.insert(kf, (p, t_child_parent));
+            }
+        }
         for mp in observed {
             self.erase_observation(mp, kf);
         }
@@ -147,6 +154,23 @@ impl Map {
             self.kf_pool.push(k);
         }
         true
+    }
+
+    /// The current pose of keyframe `kf`, also after it was culled: through the parents it
+    /// was attached to (each culled keyframe keeps its pose relative to its parent).
+    pub fn keyframe_pose_or_tombstone(&self, kf: KeyFrameId) -> Option<CameraFromWorld> {
+        let mut rel = crate::geometry::Se3::identity();
+        let mut at = kf;
+        // A chain is at most as long as the keyframes culled; bounded against cycles.
+        for _ in 0..=self.tombstones.len() {
+            if let Some(k) = self.keyframes.get(at) {
+                return Some(CameraFromWorld(rel * k.t_cw.0));
+            }
+            let (parent, t_child_parent) = self.tombstones.get(&at)?;
+            rel *= t_child_parent;
+            at = *parent;
+        }
+        None
     }
 
     /// Essential-graph edges (each once): spanning tree, covisibility >= `essential_min_weight`,

@@ -78,6 +78,9 @@ pub struct Map {
     /// Scratch for covisibility counting (indexed by keyframe slot).
     counts: Vec<u32>,
     touched: Vec<usize>,
+    /// Culled keyframes: their spanning-tree parent and their pose relative to it when culled
+    /// (ORB-SLAM's `Tcp`), so frames tracked against them keep following the map.
+    tombstones: std::collections::HashMap<KeyFrameId, (KeyFrameId, crate::geometry::Se3)>,
 }
 
 impl Map {
@@ -108,6 +111,7 @@ impl Map {
             corrections: 0,
             counts: vec![0; config.max_keyframes],
             touched: Vec::with_capacity(config.max_keyframes),
+            tombstones: std::collections::HashMap::with_capacity(config.max_keyframes.min(4096)),
             config,
         }
     }
@@ -457,6 +461,7 @@ impl Map {
 
     /// Removes every keyframe and point (buffers return to the pools): a fresh map.
     pub fn reset(&mut self) {
+        self.tombstones.clear();
         let kfs: Vec<KeyFrameId> = self.keyframes.handles().collect();
         for k in kfs {
             if let Some(mut kf) = self.keyframes.remove(k) {

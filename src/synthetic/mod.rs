@@ -6,11 +6,13 @@ pub mod chessboard;
 
 mod path;
 mod render;
+mod scenario;
 mod scene;
 mod texture;
 
 pub use path::OrbitPath;
 pub use render::Renderer;
+pub use scenario::{CameraPath, Scenario};
 pub use scene::Scene;
 
 use sdslam_camera::{Frame, FrameSource, FrameStatus, SourceError, SourceInfo};
@@ -32,6 +34,8 @@ pub struct SyntheticConfig {
     pub noise_sigma: f64,
     /// First timestamp, seconds.
     pub t0: f64,
+    /// Scene and motion (the default orbit, or a stress scene).
+    pub scenario: Scenario,
 }
 
 impl Default for SyntheticConfig {
@@ -44,6 +48,7 @@ impl Default for SyntheticConfig {
             seed: 2015,
             noise_sigma: 1.5,
             t0: 1_700_000_000.0,
+            scenario: Scenario::Desk,
         }
     }
 }
@@ -78,18 +83,22 @@ impl SyntheticConfig {
 pub struct SyntheticSequence {
     pub config: SyntheticConfig,
     renderer: Renderer,
-    path: OrbitPath,
+    path: CameraPath,
     info: SourceInfo,
     next: usize,
 }
 
 impl SyntheticSequence {
     pub fn new(config: SyntheticConfig) -> Self {
-        let scene = Scene::desk(config.seed);
+        let scene = Scene::room(config.seed, config.scenario.weak_walls());
         let renderer = Renderer::new(scene, config.camera(), config.noise_sigma, config.seed);
-        let path = OrbitPath::desk(config.frames);
+        let path = CameraPath::new(config.scenario, config.frames);
+        let name = match config.scenario {
+            Scenario::Desk => "synthetic".to_string(),
+            s => format!("synthetic:{}", s.name()),
+        };
         let info = SourceInfo {
-            name: "synthetic".into(),
+            name,
             width: config.width,
             height: config.height,
             fps: config.fps,
@@ -110,7 +119,7 @@ impl SyntheticSequence {
         (0..self.config.frames)
             .map(|i| TimedPose {
                 timestamp: self.config.timestamp(i),
-                t_wc: self.path.pose(i),
+                t_wc: self.path.pose(i as f64),
             })
             .collect()
     }
@@ -118,8 +127,7 @@ impl SyntheticSequence {
     /// Renders frame `i` into `out` (colour and grey).
     pub fn render_frame(&self, i: usize, out: &mut Frame) {
         out.ensure_size(self.config.width, self.config.height);
-        self.renderer
-            .render(&self.path.pose(i), i as u64, &mut out.rgb, None);
+        self.render_scenario(i, out, None);
         sdslam_camera::frame::gray_from_rgb(out);
         out.has_color = true;
         out.timestamp = self.config.timestamp(i);
@@ -138,12 +146,45 @@ impl SyntheticSequence {
     /// Renders frame `i` with its planar depth (metres along the optical axis, 0 = none).
     pub fn render_with_depth(&self, i: usize, out: &mut Frame, depth: &mut [f32]) {
         out.ensure_size(self.config.width, self.config.height);
-        self.renderer
-            .render(&self.path.pose(i), i as u64, &mut out.rgb, Some(depth));
+        self.render_scenario(i, out, Some(depth));
         sdslam_camera::frame::gray_from_rgb(out);
         out.has_color = true;
         out.timestamp = self.config.timestamp(i);
         out.index = i as u64;
+    }
+}
+
+impl SyntheticSequence {
+    /// Frame `i` of the scenario into `out.rgb`: blur samples averaged around the frame's
+    /// pose (depth from the pose itself), then the scenario's gain.
+    fn render_scenario(&self, i: usize, out: &mut Frame, depth: Option<&mut [f32]>) {
+        let s = self.config.scenario;
+        self.renderer
+            .render(&self.path.pose(i as f64), i as u64, &mut out.rgb, depth);
+        let n = s.blur_samples();
+        if n > 1 {
+            // The shutter open over the second half of the frame interval, centred on the pose.
+            let mut sum: Vec<f32> = out.rgb.iter().map(|&v| v as f32).collect();
+            let mut sample = vec![0u8; out.rgb.len()];
+            for k in (0..n).filter(|&k| 2 * k + 1 != n) {
+                let dt = 0.5 * (k as f64 / (n - 1) as f64 - 0.5);
+                let pose = self.path.pose(i as f64 + dt);
+                self.renderer
+                    .render(&pose, i as u64 * 7 + k as u64, &mut sample, None);
+                for (a, &b) in sum.iter_mut().zip(&sample) {
+                    *a += b as f32;
+                }
+            }
+            for (o, a) in out.rgb.iter_mut().zip(&sum) {
+                *o = (a / n as f32).round() as u8;
+            }
+        }
+        let gain = s.gain(i, self.config.frames);
+        if gain != 1.0 {
+            for v in out.rgb.iter_mut() {
+                *v = (*v as f32 * gain).round().min(255.0) as u8;
+            }
+        }
     }
 }
 

@@ -22,8 +22,13 @@ impl OrbitPath {
 
     /// `T_wc` of frame `i` (camera x right, y down, z forward; world z up).
     pub fn pose(&self, i: usize) -> WorldFromCamera {
+        self.pose_at(i as f64)
+    }
+
+    /// `T_wc` at a fractional frame index (motion blur samples between frames).
+    pub fn pose_at(&self, i: f64) -> WorldFromCamera {
         // The orbit closes after `frames` frames: frame `frames` would equal frame 0.
-        let phi = TAU * i as f64 / self.frames as f64;
+        let phi = TAU * i / self.frames as f64;
         // Ease in so the first frames move slowly forward (a gentle start for initialisation).
         let radius = 1.35 + 0.15 * (3.0 * phi).sin();
         let pos = Vector3::new(

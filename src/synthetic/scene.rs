@@ -137,6 +137,13 @@ impl Scene {
     /// The built-in desk scene (z up, metres): a 7 x 7 x 3 m room, a desk at the centre with
     /// boxes and standing boards on it, cabinets and posters further away.
     pub fn desk(seed: u64) -> Scene {
+        Scene::room(seed, false)
+    }
+
+    /// The desk scene; with `weak_walls` the four walls carry a faint, sparse texture (a
+    /// painted room), so a camera looking outward sees few features.
+    pub fn room(seed: u64, weak_walls: bool) -> Scene {
+        let (wall_density, wall_contrast) = if weak_walls { (0.35, 0.12) } else { (1.5, 0.8) };
         let mut s = Scene::new();
         let mut rng = Rng::new(seed);
         let (hx, hy, hz) = (3.5, 3.5, 3.0);
@@ -170,8 +177,8 @@ impl Scene {
             v(0.0, 0.0, hz),
             &mut rng,
             150.0,
-            1.5,
-            0.8,
+            wall_density,
+            wall_contrast,
         );
         s.quad(
             &mut room,
@@ -180,8 +187,8 @@ impl Scene {
             v(0.0, 0.0, hz),
             &mut rng,
             150.0,
-            1.5,
-            0.8,
+            wall_density,
+            wall_contrast,
         );
         s.quad(
             &mut room,
@@ -190,8 +197,8 @@ impl Scene {
             v(0.0, 0.0, hz),
             &mut rng,
             150.0,
-            1.5,
-            0.8,
+            wall_density,
+            wall_contrast,
         );
         s.quad(
             &mut room,
@@ -200,8 +207,8 @@ impl Scene {
             v(0.0, 0.0, hz),
             &mut rng,
             150.0,
-            1.5,
-            0.8,
+            wall_density,
+            wall_contrast,
         );
         s.push(room);
         // Desk: a block 1.6 x 1.0 x 0.75.

@@ -14,7 +14,8 @@ use nalgebra::{Matrix3, Vector2, Vector3};
 use super::ransac::SeededRng;
 use super::Se3;
 use models::{normalize, ransac_model, refit, NormalizedMatches};
-use reconstruct::{reconstruct_f, reconstruct_h};
+use reconstruct::{epipolar_score, essential_motion, reconstruct_f, reconstruct_h};
+use refine::refine_motion;
 
 pub use models::{fundamental_8point, homography_dlt};
 
@@ -32,6 +33,15 @@ pub struct TwoViewConfig {
     /// Choose H when `S_H / (S_H + S_F)` exceeds this.
     pub h_selection_ratio: f64,
     pub seed: u64,
+    /// On an H-F tie, the homography's motion is taken (a planar scene) from this parallax.
+    pub planar_tie_parallax_deg: f64,
+    /// Share of a model's inliers its motion must triangulate (ORB-SLAM: 0.9).
+    pub min_good_share: f64,
+    /// H and F motions within this angle (translation direction; a quarter of it for the
+    /// rotation) are the same motion; otherwise both are scored on all matches.
+    pub agreement_deg: f64,
+    /// A motion wins the H-F cross-check when its epipolar score is this many times the other's.
+    pub cross_check_margin: f64,
     /// Map points the initial map must keep after its two-view BA, or it is refused
     /// (ORB-SLAM monocular: 100).
     pub min_initial_map_points: usize,
@@ -46,6 +56,10 @@ impl Default for TwoViewConfig {
             min_triangulated: 50,
             h_selection_ratio: 0.45,
             seed: 0,
+            planar_tie_parallax_deg: 4.0,
+            min_good_share: 0.9,
+            agreement_deg: 10.0,
+            cross_check_margin: 1.05,
             min_initial_map_points: 100,
         }
     }
@@ -71,6 +85,8 @@ pub struct TwoViewMotion {
     pub score_ratio: f64,
     /// Matches consistent with the chosen model.
     pub inliers: usize,
+    /// Only the points with parallax told the hypotheses apart; kept only if F confirms it.
+    pub needs_confirmation: bool,
 }
 
 /// Why no motion was returned.
@@ -174,7 +190,16 @@ pub fn initialize(
     let mut r = match model {
         TwoViewModel::Homography => {
             refit(model, &mut est.h21, &mut est.h_inliers, x1, x2, inv_s2);
-            reconstruct_h(&est.h21, x1, x2, &est.h_inliers, k, th2, cfg)?
+            let planar = reconstruct_h(&est.h21, x1, x2, &est.h_inliers, k, th2, cfg)?;
+            refit(
+                TwoViewModel::Fundamental,
+                &mut est.f21,
+                &mut est.f_inliers,
+                x1,
+                x2,
+                inv_s2,
+            );
+            cross_check(planar, &est, x1, x2, k, cfg)?
         }
         TwoViewModel::Fundamental => {
             refit(model, &mut est.f21, &mut est.f_inliers, x1, x2, inv_s2);
@@ -183,4 +208,87 @@ pub fn initialize(
     };
     r.score_ratio = est.ratio;
     Ok(r)
+}
+
+/// The homography was selected: is its motion also the one the whole scene says? At low
+/// parallax a homography fits a non-planar scene nearly as well as F (forward motion: a
+/// zoom) and its decomposition can then pick a rotation-plus-sideways motion that drives the
+/// map off. Its motion and F's essential matrix are each refined on the Sampson error of every
+/// match either model kept and scored by their epipolar residuals:
+/// - the same essential matrix after refinement: F's reconstruction if it passes its checks
+///   (its points are not bound to a plane), else the homography's;
+/// - F clearly better: the scene is not a plane; F's motion, if it can be recovered
+///   unambiguously with enough parallax, otherwise wait for a later frame;
+/// - H clearly better: a plane with a noisy F; H stands;
+/// - a tie: a plane (F is a family there); H stands from `planar_tie_parallax_deg`.
+fn cross_check(
+    planar: TwoViewMotion,
+    est: &ModelEstimates,
+    x1: &[Vector2<f64>],
+    x2: &[Vector2<f64>],
+    k: &Matrix3<f64>,
+    cfg: &TwoViewConfig,
+) -> Result<TwoViewMotion, TwoViewError> {
+    let Some((r_f, t_f)) = essential_motion(&est.f21, k) else {
+        return Ok(planar);
+    };
+    let any: Vec<bool> = est
+        .h_inliers
+        .iter()
+        .zip(&est.f_inliers)
+        .map(|(&h, &f)| h || f)
+        .collect();
+    let inv_s2 = 1.0 / (cfg.sigma * cfg.sigma);
+    let r_h = planar.t_21.rotation.to_rotation_matrix().into_inner();
+    let (r_h, t_h) = refine_motion(&r_h, &planar.t_21.translation.vector, x1, x2, &any, k);
+    let (r_f, t_f) = refine_motion(&r_f, &t_f, x1, x2, &any, k);
+    let a = epipolar_score(&r_h, &t_h, x1, x2, k, inv_s2);
+    let b = epipolar_score(&r_f, &t_f, x1, x2, k, inv_s2);
+    let margin = cfg.cross_check_margin;
+    let th2 = 4.0 * cfg.sigma * cfg.sigma;
+    if same_essential(&r_h, &t_h, &r_f, &t_f, cfg.agreement_deg) {
+        // One motion: F's reconstruction (not bound to a plane) when it passes its checks.
+        return match reconstruct_f(&est.f21, x1, x2, &est.f_inliers, k, th2, cfg) {
+            Ok(general) => Ok(general),
+            Err(e) if planar.needs_confirmation => Err(e),
+            Err(_) => Ok(planar),
+        };
+    }
+    if planar.needs_confirmation && b <= margin * a {
+        return Err(TwoViewError::Ambiguous {
+            best: a.max(b) as usize,
+            second: a.min(b) as usize,
+        });
+    }
+    if a > margin * b {
+        return Ok(planar);
+    }
+    if b > margin * a {
+        return reconstruct_f(&est.f21, x1, x2, &est.f_inliers, k, th2, cfg);
+    }
+    if planar.parallax_deg >= cfg.planar_tie_parallax_deg {
+        Ok(planar)
+    } else {
+        Err(TwoViewError::Ambiguous {
+            best: a.max(b) as usize,
+            second: a.min(b) as usize,
+        })
+    }
+}
+
+/// Whether two motions have the same essential matrix (up to sign and scale), within about
+/// `tolerance_deg` of rotation or translation direction.
+fn same_essential(
+    r_a: &Matrix3<f64>,
+    t_a: &Vector3<f64>,
+    r_b: &Matrix3<f64>,
+    t_b: &Vector3<f64>,
+    tolerance_deg: f64,
+) -> bool {
+    let e = |r: &Matrix3<f64>, t: &Vector3<f64>| {
+        let m = t.cross_matrix() * r;
+        m / m.norm().max(f64::MIN_POSITIVE)
+    };
+    let (ea, eb) = (e(r_a, t_a), e(r_b, t_b));
+    (ea - eb).norm().min((ea + eb).norm()) <= tolerance_deg.to_radians()
 }

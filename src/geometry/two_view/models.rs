@@ -118,7 +118,7 @@ fn score_h(
 }
 
 /// Symmetric epipolar score of F (point-to-line distances in both images) and the inlier mask.
-fn score_f(
+pub(super) fn score_f(
     f21: &Matrix3<f64>,
     x1: &[Vector2<f64>],
     x2: &[Vector2<f64>],

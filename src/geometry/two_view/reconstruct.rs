@@ -11,6 +11,11 @@ use crate::geometry::Se3;
 /// Result of checking one motion hypothesis.
 struct Check {
     good: usize,
+    /// Good points with parallax (angle > 0.36 deg, ORB-SLAM's triangulation limit): the only
+    /// ones whose cheirality depends on the hypothesis. Points near the focus of expansion
+    /// (forward motion) or far away pass every hypothesis alike, so hypotheses are ranked and
+    /// told apart by these.
+    decisive: usize,
     parallax_deg: f64,
     points: Vec<Option<Vector3<f64>>>,
     /// Matches that triangulated in front of both cameras within the reprojection gate.
@@ -39,6 +44,7 @@ fn check_rt(
     let mut consistent = vec![false; x1.len()];
     let mut cos_par = Vec::new();
     let mut good = 0;
+    let mut decisive = 0;
     let proj = |p: &Vector3<f64>| {
         let q = k * p;
         Vector2::new(q.x / q.z, q.y / q.z)
@@ -67,6 +73,7 @@ fn check_rt(
         consistent[i] = true;
         if cos < 0.99998 {
             points[i] = Some(p);
+            decisive += 1;
         }
     }
     let parallax_deg = if cos_par.is_empty() {
@@ -80,10 +87,46 @@ fn check_rt(
     };
     Check {
         good,
+        decisive,
         parallax_deg,
         points,
         consistent,
     }
+}
+
+/// How well the motion `(r, t)` explains all matches: the truncated epipolar score of its
+/// essential matrix (ORB-SLAM's F score, `sum(th - d^2 / sigma^2)` over both images). Counting
+/// triangulated points does not tell motions apart at low parallax (a free depth absorbs a
+/// wrong motion within the reprojection gate); the epipolar residual does.
+pub(super) fn epipolar_score(
+    r: &Matrix3<f64>,
+    t: &Vector3<f64>,
+    x1: &[Vector2<f64>],
+    x2: &[Vector2<f64>],
+    k: &Matrix3<f64>,
+    inv_s2: f64,
+) -> f64 {
+    let Some(kinv) = k.try_inverse() else {
+        return 0.0;
+    };
+    let f = kinv.transpose() * t.cross_matrix() * r * kinv;
+    let mut cur = vec![false; x1.len()];
+    super::models::score_f(&f, x1, x2, inv_s2, &mut cur)
+}
+
+/// One of the four motions of `E = K^T F K` (all four share the essential matrix, so any
+/// one scores the epipolar geometry of F).
+pub(super) fn essential_motion(
+    f21: &Matrix3<f64>,
+    k: &Matrix3<f64>,
+) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+    let e = k.transpose() * f21 * k;
+    let svd = e.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let w = Matrix3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
+    let r = u * w * vt;
+    let r = if r.determinant() < 0.0 { -r } else { r };
+    Some((r, u.column(2).normalize()))
 }
 
 fn finish(
@@ -101,6 +144,7 @@ fn finish(
         parallax_deg: c.parallax_deg,
         score_ratio: 0.0,
         inliers,
+        needs_confirmation: false,
     }
 }
 
@@ -131,22 +175,25 @@ pub(super) fn reconstruct_f(
     let (bi, best) = checks
         .iter()
         .enumerate()
-        .max_by_key(|(_, c)| c.good)
+        .max_by_key(|(_, c)| (c.decisive, c.good))
         .ok_or(TwoViewError::NoModel)?;
     let max_good = best.good;
-    let needed = ((0.9 * n_inl as f64) as usize).max(cfg.min_triangulated);
+    let max_decisive = best.decisive;
+    let needed = ((cfg.min_good_share * n_inl as f64) as usize).max(cfg.min_triangulated);
     // No parallax: nothing can be decided about the motion (pure rotation, tiny baseline).
     if best.parallax_deg < cfg.min_parallax_deg {
         return Err(TwoViewError::Degenerate {
             parallax_deg: best.parallax_deg,
         });
     }
+    // ORB-SLAM's test (another hypothesis with > 70% of the best's points), on the points
+    // that can tell the hypotheses apart.
     let similar = checks
         .iter()
-        .filter(|c| c.good as f64 > 0.7 * max_good as f64)
+        .filter(|c| c.decisive as f64 > 0.7 * max_decisive as f64)
         .count();
     if similar > 1 {
-        let mut goods: Vec<usize> = checks.iter().map(|c| c.good).collect();
+        let mut goods: Vec<usize> = checks.iter().map(|c| c.decisive).collect();
         goods.sort_unstable_by(|a, b| b.cmp(a));
         return Err(TwoViewError::Ambiguous {
             best: goods[0],
@@ -157,6 +204,12 @@ pub(super) fn reconstruct_f(
     // still include outliers lying near their epipolar line.
     let (r, t) = refine_motion(&hyps[bi].0, &hyps[bi].1, x1, x2, &checks[bi].consistent, k);
     let c = check_rt(&r, &t, x1, x2, inl, k, th2);
+    // The refined motion must still carry the parallax (refinement can trade it away).
+    if c.parallax_deg < cfg.min_parallax_deg {
+        return Err(TwoViewError::Degenerate {
+            parallax_deg: c.parallax_deg,
+        });
+    }
     if c.good < needed {
         return Err(TwoViewError::TooFewTriangulated {
             good: c.good.max(max_good),
@@ -237,10 +290,16 @@ pub(super) fn reconstruct_h(
         .map(|(r, t)| check_rt(r, t, x1, x2, inl, k, th2))
         .collect();
     let mut order: Vec<usize> = (0..checks.len()).collect();
-    order.sort_by(|&a, &b| checks[b].good.cmp(&checks[a].good));
+    let rank = |c: &Check| (c.decisive, c.good);
+    order.sort_by(|&a, &b| rank(&checks[b]).cmp(&rank(&checks[a])));
     let (bi, si) = (order[0], order[1]);
-    let (best, second) = (checks[bi].good, checks[si].good);
-    let needed = ((0.9 * n_inl as f64) as usize).max(cfg.min_triangulated);
+    let (best, second) = (checks[bi].decisive, checks[si].decisive);
+    // ORB-SLAM's count test on all good points: ambiguous there, only the decisive points
+    // chose, so the motion must be confirmed by F (see `cross_check`).
+    let mut goods: Vec<usize> = checks.iter().map(|c| c.good).collect();
+    goods.sort_unstable_by(|a, b| b.cmp(a));
+    let needs_confirmation = goods[1] as f64 >= 0.75 * goods[0] as f64;
+    let needed = ((cfg.min_good_share * n_inl as f64) as usize).max(cfg.min_triangulated);
     if checks[bi].parallax_deg < cfg.min_parallax_deg {
         return Err(TwoViewError::Degenerate {
             parallax_deg: checks[bi].parallax_deg,
@@ -259,11 +318,19 @@ pub(super) fn reconstruct_h(
         k,
     );
     let c = check_rt(&r, &t, x1, x2, inl, k, th2);
+    // The refined motion must still carry the parallax (refinement can trade it away).
+    if c.parallax_deg < cfg.min_parallax_deg {
+        return Err(TwoViewError::Degenerate {
+            parallax_deg: c.parallax_deg,
+        });
+    }
     if c.good < needed {
         return Err(TwoViewError::TooFewTriangulated {
-            good: c.good.max(best),
+            good: c.good.max(checks[bi].good),
             needed,
         });
     }
-    Ok(finish(TwoViewModel::Homography, &r, &t, c, n_inl))
+    let mut m = finish(TwoViewModel::Homography, &r, &t, c, n_inl);
+    m.needs_confirmation = needs_confirmation;
+    Ok(m)
 }

@@ -42,6 +42,15 @@ impl System {
         let Some(reference) = self.init.reference.take() else {
             return TrackingState::NotInitialised;
         };
+        tracing::debug!(
+            model = ?motion.model,
+            score_ratio = motion.score_ratio,
+            parallax_deg = motion.parallax_deg,
+            inliers = motion.inliers,
+            t_21 = ?motion.t_21.translation.vector.normalize().as_slice(),
+            rotation_deg = motion.t_21.rotation.angle().to_degrees(),
+            "two-view motion"
+        );
         let init = &self.init;
         let Ok(kf0) = map.insert_keyframe(|kf| {
             kf.keypoints.extend_from_slice(&reference.keypoints);

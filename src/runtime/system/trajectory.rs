@@ -11,8 +11,9 @@ impl System {
             .trajectory
             .iter()
             .map(|e| {
-                let t_cw = match e.reference.and_then(|r| map.keyframe(r)) {
-                    Some(k) => CameraFromWorld(e.t_c_ref * k.t_cw.0),
+                // A culled reference keyframe is followed through its parent.
+                let t_cw = match e.reference.and_then(|r| map.keyframe_pose_or_tombstone(r)) {
+                    Some(k) => CameraFromWorld(e.t_c_ref * k.0),
                     None => e.t_cw,
                 };
                 TimedPose {

@@ -1,0 +1,78 @@
+#!/usr/bin/env python3
+"""Robustness figures of one `sdslam run` output folder against its ground truth, as the
+evaluation protocol asks: frame of the first pose, share of frames tracked after it, keyframe
+ATE (absolute and as % of the ground-truth path length), and the worst per-frame error of a
+pose reported Ok (all frames Sim3-aligned to the ground truth, as % of path length).
+
+usage: tools/robustness.py OUT [GROUNDTRUTH]   (GROUNDTRUTH defaults to OUT/groundtruth.txt)
+"""
+import json, sys
+import numpy as np
+
+def read_tum(p):
+    rows = []
+    for line in open(p):
+        if line.startswith('#') or not line.strip():
+            continue
+        v = [float(x) for x in line.split()[:8]]
+        rows.append(v)
+    return np.array(rows) if rows else np.zeros((0, 8))
+
+def associate(a, b, dt=0.02):
+    pairs, j = [], 0
+    for i, t in enumerate(a[:, 0]):
+        k = np.argmin(np.abs(b[:, 0] - t))
+        if abs(b[k, 0] - t) <= dt:
+            pairs.append((i, k))
+    return pairs
+
+def umeyama(src, dst):
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    s, d = src - mu_s, dst - mu_d
+    cov = d.T @ s / len(src)
+    u, sig, vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        S[2, 2] = -1
+    r = u @ S @ vt
+    var = (s ** 2).sum() / len(src)
+    c = np.trace(np.diag(sig) @ S) / var if var > 0 else 1.0
+    t = mu_d - c * r @ mu_s
+    return c, r, t
+
+def main():
+    out = sys.argv[1]
+    gt = read_tum(sys.argv[2] if len(sys.argv) > 2 else f"{out}/groundtruth.txt")
+    traj = read_tum(f"{out}/trajectory.txt")
+    kfs = read_tum(f"{out}/keyframes.txt")
+    rep = json.load(open(f"{out}/report.json"))
+    path = np.linalg.norm(np.diff(gt[:, 1:4], axis=0), axis=1).sum()
+    frames = rep["frames"]
+    res = {"frames": frames, "path_m": round(path, 3)}
+    if len(traj) == 0:
+        res["first_pose_frame"] = None
+        print(json.dumps(res)); return
+    first = int(np.argmin(np.abs(gt[:, 0] - traj[0, 0])))
+    res["first_pose_frame"] = first
+    res["tracked_after_first"] = round(len(traj) / max(1, frames - first), 4)
+    p = associate(kfs, gt)
+    if len(p) >= 3:
+        src = np.array([kfs[i, 1:4] for i, _ in p]); dst = np.array([gt[k, 1:4] for _, k in p])
+        c, r, t = umeyama(src, dst)
+        e = np.linalg.norm((c * (r @ src.T)).T + t - dst, axis=1)
+        res["kf_ate_m"] = round(float(np.sqrt((e ** 2).mean())), 4)
+        res["kf_ate_pct_path"] = round(100 * res["kf_ate_m"] / path, 3)
+    p = associate(traj, gt)
+    if len(p) >= 3:
+        src = np.array([traj[i, 1:4] for i, _ in p]); dst = np.array([gt[k, 1:4] for _, k in p])
+        c, r, t = umeyama(src, dst)
+        e = np.linalg.norm((c * (r @ src.T)).T + t - dst, axis=1)
+        res["frame_ate_pct_path"] = round(100 * float(np.sqrt((e ** 2).mean())) / path, 3)
+        res["worst_ok_frame_pct_path"] = round(100 * float(e.max()) / path, 3)
+        res["ok_frames_off_by_5pct"] = int((e > 0.05 * path).sum())
+    for k in ["map_resets", "lost_episodes", "relocalisations", "loops_closed", "keyframes"]:
+        if k in rep:
+            res[k] = rep[k]
+    print(json.dumps(res))
+
+main()
