@@ -193,7 +193,10 @@ fn two_view_planar_scenes_select_h_and_recover_motion_or_report_ambiguity() {
                 accurate += (te < 1.0) as usize;
                 solved += 1;
             }
-            Err(TwoViewError::Ambiguous { .. }) => ambiguous += 1,
+            // Two-fold, or one of the pair not yet confirmed by F: refused, not guessed.
+            Err(TwoViewError::Ambiguous { .. } | TwoViewError::Unconfirmed { .. }) => {
+                ambiguous += 1
+            }
             Err(e) => panic!("seed {seed}: {e}"),
         }
     }

@@ -31,6 +31,14 @@ pub struct TrackingConfig {
     /// starts over (ORB-SLAM resets at once; a short blackout should not cost the map).
     pub young_map_keyframes: usize,
     pub young_map_patience_frames: usize,
+    /// Scale collapse (see `tracking::collapse`): over `collapse_keyframes` keyframes the
+    /// median scene depth fell below `collapse_depth_shrink` of its value while the camera
+    /// travelled less than `collapse_path_ratio` of the depth lost and turned less than
+    /// `collapse_max_turn_deg`: the map is discarded and its poses dropped.
+    pub collapse_path_ratio: f64,
+    pub collapse_depth_shrink: f64,
+    pub collapse_max_turn_deg: f64,
+    pub collapse_keyframes: usize,
 }
 
 impl Default for TrackingConfig {
@@ -47,6 +55,10 @@ impl Default for TrackingConfig {
             relocalisation_candidates: 10,
             young_map_keyframes: 5,
             young_map_patience_frames: 30,
+            collapse_path_ratio: 0.1,
+            collapse_depth_shrink: 0.25,
+            collapse_max_turn_deg: 15.0,
+            collapse_keyframes: 5,
         }
     }
 }

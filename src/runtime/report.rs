@@ -71,10 +71,13 @@ pub struct Report {
     pub wall_time_s: f64,
     /// The final full BA (`[map] final_global_ba`), after the last frame, milliseconds.
     pub final_ba_ms: f64,
-    /// Maps discarded because tracking was lost right after initialisation, and the poses
-    /// of frames tracked in them (dropped: they were in the discarded map's frame).
+    /// Maps discarded (tracking lost right after initialisation, or a divergence below), and
+    /// the poses of frames tracked in them (dropped: they were in the discarded map's frame).
     pub map_resets: usize,
     pub poses_discarded_by_reset: usize,
+    /// Maps found diverging (a scale collapse: keyframes that neither move nor turn while the
+    /// view changes) and discarded, each with its frame and reason. Their frames are not `Ok`.
+    pub divergences: Vec<String>,
     /// Why the run ended early, if it did (error or interruption); outputs are still written.
     pub stopped_early: Option<String>,
     /// Keyframes reconstructed by semi-dense mapping, and those it skipped (culled before

@@ -24,7 +24,9 @@ use crate::place_recognition::{default_vocabulary, KeyFrameDatabase, Vocabulary}
 use crate::runtime::semidense_worker::SemiDenseWorker;
 use crate::runtime::StageTimer;
 use crate::semidense::SemiDenseMapper;
-use crate::tracking::{InitAttempt, Initializer, TrackedFrame, Tracker, TrackingState};
+use crate::tracking::{
+    CollapseMonitor, InitAttempt, Initializer, TrackedFrame, Tracker, TrackingState,
+};
 use std::collections::HashMap;
 
 mod backfill;
@@ -66,6 +68,8 @@ pub struct SystemStats {
     pub resets: usize,
     /// Poses dropped from the trajectory by resets (they were in the discarded map's frame).
     pub poses_discarded_by_reset: usize,
+    /// Maps found diverging (scale collapse) and discarded: frame and reason of each.
+    pub divergences: Vec<String>,
     /// Frames before initialisation tracked afterwards against the first map.
     pub backfilled_frames: usize,
     pub orb_extraction: StageTimer,
@@ -127,6 +131,8 @@ pub struct System {
     rectifier: Option<crate::camera_model::FrameRectifier>,
     /// Consecutive lost frames while the map is young (`[tracking] young_map_keyframes`).
     young_map_lost_frames: usize,
+    /// Scale-collapse watch on the keyframes ([`CollapseMonitor`]).
+    collapse: CollapseMonitor,
     limits: SystemLimits,
     /// Consecutive frames initialisation has failed (for a warning).
     uninitialised_frames: usize,
@@ -244,6 +250,7 @@ impl System {
             trajectory: Vec::with_capacity(expected_frames),
             rectifier: Some(crate::camera_model::FrameRectifier::new(&calib.camera)),
             young_map_lost_frames: 0,
+            collapse: CollapseMonitor::new(&config.tracking, max_features),
             limits: SystemLimits {
                 young_map_keyframes: config.tracking.young_map_keyframes,
                 young_map_patience_frames: config.tracking.young_map_patience_frames,
@@ -255,6 +262,7 @@ impl System {
                 frames: 0,
                 tracked_frames: 0,
                 poses_discarded_by_reset: 0,
+                divergences: Vec::new(),
                 keyframes_created: 0,
                 resets: 0,
                 backfilled_frames: 0,
@@ -394,6 +402,20 @@ impl System {
                 let tk = Instant::now();
                 new_keyframe = self.insert_keyframe(map, gray, rgb, t0);
                 self.stats.keyframe_insertion.record(tk.elapsed());
+                if new_keyframe && self.collapse.keyframe(map, &self.frame) {
+                    let c = &self.tracker.config;
+                    let reason = format!(
+                        "frame {}: over {} keyframes the scene depth fell below {} of its value while the camera moved less than {} of the depth lost and turned less than {} deg (scale collapse)",
+                        self.frame.index,
+                        self.collapse.window(),
+                        c.collapse_depth_shrink,
+                        c.collapse_path_ratio,
+                        c.collapse_max_turn_deg
+                    );
+                    tracing::warn!(%reason, "map diverging: discarded, initialising again");
+                    self.stats.divergences.push(reason);
+                    self.reset(map);
+                }
             }
             let young = map.n_keyframes() <= self.limits.young_map_keyframes;
             if st == TrackingState::Lost && young && !self.localize_only {
@@ -402,6 +424,9 @@ impl System {
                 self.young_map_lost_frames += 1;
                 if self.young_map_lost_frames > self.limits.young_map_patience_frames {
                     self.young_map_lost_frames = 0;
+                    tracing::warn!(
+                        "lost right after initialisation: map reset, initialising again"
+                    );
                     self.reset(map);
                 }
             } else if st == TrackingState::Ok {
@@ -504,6 +529,7 @@ impl System {
         self.semidense.reset();
         self.tracker.reset(TrackingState::NotInitialised);
         self.init.reset();
+        self.collapse.reset();
         self.stats.resets += 1;
         // The poses so far are in the discarded map's world frame (every reset discards the
         // whole map): a trajectory must never mix two frames, so they are dropped and counted.
@@ -511,7 +537,6 @@ impl System {
         self.trajectory.clear();
         self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(discarded);
         self.stats.poses_discarded_by_reset += discarded;
-        tracing::warn!("lost right after initialisation: map reset, initialising again");
     }
 
     /// Makes a keyframe of the current frame and maps it (inline) or queues it (thread).

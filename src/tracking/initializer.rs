@@ -204,8 +204,12 @@ impl Initializer {
                 InitAttempt::Ready
             }
             Err(e) => {
-                if matches!(e, TwoViewError::Degenerate { .. }) {
-                    // Too little parallax yet: keep the reference, the baseline grows.
+                if matches!(
+                    e,
+                    TwoViewError::Degenerate { .. } | TwoViewError::Unconfirmed { .. }
+                ) {
+                    // Too little parallax yet (or too little to confirm the homography): keep
+                    // the reference, the baseline grows.
                     self.keep_pending(f);
                     return InitAttempt::Failed(e);
                 }

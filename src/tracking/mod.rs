@@ -4,12 +4,14 @@
 //! decision. The state (NotInitialised, Ok, Lost) is exposed; losing track is a state, not an
 //! error.
 
+pub mod collapse;
 pub mod frame;
 pub mod initializer;
 mod local_map;
 
 use nalgebra::{Vector2, Vector3};
 
+pub use collapse::CollapseMonitor;
 pub use frame::TrackedFrame;
 pub use initializer::{InitAttempt, Initializer};
 

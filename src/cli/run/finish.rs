@@ -178,6 +178,7 @@ fn fill_tracking_report(report: &mut Report, system: &System, frame_timer: &Stag
     report.backfilled_frames = system.stats.backfilled_frames;
     report.map_resets = system.stats.resets;
     report.poses_discarded_by_reset = system.stats.poses_discarded_by_reset;
+    report.divergences = system.stats.divergences.clone();
     report.lost_episodes = system.tracker.lost_episodes;
     report.relocalisations = system.tracker.relocalisations;
     report.loops_closed = system.stats.loops_closed;

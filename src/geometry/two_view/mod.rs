@@ -58,7 +58,7 @@ impl Default for TwoViewConfig {
             seed: 0,
             planar_tie_parallax_deg: 4.0,
             min_good_share: 0.9,
-            agreement_deg: 10.0,
+            agreement_deg: 3.0,
             cross_check_margin: 1.05,
             min_initial_map_points: 100,
         }
@@ -102,6 +102,10 @@ pub enum TwoViewError {
     /// Several motion hypotheses explain the data about equally well.
     #[error("ambiguous motion: best hypothesis {best} points, runner-up {second}")]
     Ambiguous { best: usize, second: usize },
+    /// The homography's hypotheses were told apart by few points and F does not confirm its
+    /// motion yet: a longer baseline decides.
+    #[error("homography motion not confirmed by F (epipolar scores {best}, {second})")]
+    Unconfirmed { best: usize, second: usize },
     #[error("only {good} points triangulated, {needed} needed")]
     TooFewTriangulated { good: usize, needed: usize },
 }
@@ -215,8 +219,9 @@ pub fn initialize(
 /// zoom) and its decomposition can then pick a rotation-plus-sideways motion that drives the
 /// map off. Its motion and F's essential matrix are each refined on the Sampson error of every
 /// match either model kept and scored by their epipolar residuals:
-/// - the same essential matrix after refinement: F's reconstruction if it passes its checks
-///   (its points are not bound to a plane), else the homography's;
+/// - the same essential matrix after refinement (within `agreement_deg`): F's reconstruction
+///   if it passes its checks, else the homography's (unless only a few points chose among
+///   its hypotheses: then wait);
 /// - F clearly better: the scene is not a plane; F's motion, if it can be recovered
 ///   unambiguously with enough parallax, otherwise wait for a later frame;
 /// - H clearly better: a plane with a noisy F; H stands;
@@ -247,11 +252,18 @@ fn cross_check(
     let margin = cfg.cross_check_margin;
     let th2 = 4.0 * cfg.sigma * cfg.sigma;
     if same_essential(&r_h, &t_h, &r_f, &t_f, cfg.agreement_deg) {
-        // One motion: F's reconstruction (not bound to a plane) when it passes its checks.
+        // One motion: F's reconstruction when it passes its checks; otherwise the
+        // homography's, unless only a few points chose among its hypotheses.
         return match reconstruct_f(&est.f21, x1, x2, &est.f_inliers, k, th2, cfg) {
-            Ok(general) => Ok(general),
-            Err(e) if planar.needs_confirmation => Err(e),
-            Err(_) => Ok(planar),
+            // F's own points (not bound to the homography's plane), when its motion is the
+            // homography's too (on a plane F's reconstruction can drift from it).
+            Ok(general) if agrees(&general, &planar, cfg) => Ok(general),
+            Ok(_) => Ok(planar),
+            Err(_) if !planar.needs_confirmation => Ok(planar),
+            Err(_) => Err(TwoViewError::Unconfirmed {
+                best: a.max(b) as usize,
+                second: a.min(b) as usize,
+            }),
         };
     }
     if planar.needs_confirmation && b <= margin * a {
@@ -291,4 +303,13 @@ fn same_essential(
     };
     let (ea, eb) = (e(r_a, t_a), e(r_b, t_b));
     (ea - eb).norm().min((ea + eb).norm()) <= tolerance_deg.to_radians()
+}
+
+/// Whether two recovered motions have the same essential matrix (unrefined: on a plane the
+/// Sampson refinement can slide along F's family).
+fn agrees(a: &TwoViewMotion, b: &TwoViewMotion, cfg: &TwoViewConfig) -> bool {
+    let ra = a.t_21.rotation.to_rotation_matrix().into_inner();
+    let rb = b.t_21.rotation.to_rotation_matrix().into_inner();
+    let (ta, tb) = (a.t_21.translation.vector, b.t_21.translation.vector);
+    same_essential(&ra, &ta, &rb, &tb, cfg.agreement_deg)
 }

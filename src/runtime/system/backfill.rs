@@ -13,8 +13,10 @@ pub(super) const BACKFILL_PER_FRAME: usize = 3;
 /// The backfill in progress and its reused buffers (allocated when initialisation starts it).
 #[derive(Default)]
 pub(super) struct Backfill {
-    /// The two initial keyframes and the next pending frame to track.
+    /// The two initial keyframes and how many pending frames are done (newest first).
     job: Option<(KeyFrameId, KeyFrameId, usize)>,
+    /// The pose of the last frame tracked: the guess for the next older one.
+    guess: Option<Se3>,
     frame: Option<TrackedFrame>,
     /// Map points now: (id, position, descriptor, max distance).
     points: Vec<(
@@ -31,6 +33,7 @@ pub(super) struct Backfill {
 impl Backfill {
     pub(super) fn start(&mut self, kf0: KeyFrameId, kf1: KeyFrameId, n_points: usize) {
         self.job = Some((kf0, kf1, 0));
+        self.guess = None;
         self.points.reserve(2 * n_points);
         self.projected.reserve(2 * n_points);
     }
@@ -41,9 +44,11 @@ impl Backfill {
 }
 
 impl System {
-    /// Tracks up to `max_frames` pending frames against the map: pose guess interpolated
-    /// between the two initial keyframes, projection search, motion-only BA. Frames with too
-    /// few inliers stay without a pose. Ends the backfill when every pending frame is done.
+    /// Tracks up to `max_frames` pending frames against the map, newest first, each from the
+    /// pose of the one after it (the second keyframe's for the first): projection search,
+    /// motion-only BA. Chaining back from the second keyframe follows any speed profile (a
+    /// start from rest is far from a linear interpolation between the keyframes). Frames with
+    /// too few inliers stay without a pose. Ends the backfill when every pending frame is done.
     pub(super) fn backfill_step(&mut self, map: &mut Map, max_frames: usize) {
         let Some((kf0, kf1, next)) = self.backfill.job else {
             return;
@@ -72,15 +77,16 @@ impl System {
             TrackedFrame::new(self.frame.features.keypoints.capacity(), w, h)
         });
         let end = next.saturating_add(max_frames).min(pending.len());
-        for pf in &pending[next..end] {
-            let a = ((pf.timestamp - ts0) / (ts1 - ts0)).clamp(0.0, 1.0);
-            let rot = p0.rotation.slerp(&p1.rotation, a);
-            let trans = p0.translation.vector.lerp(&p1.translation.vector, a);
+        for pf in pending[..pending.len() - next]
+            .iter()
+            .rev()
+            .take(end - next)
+        {
             tf.index = pf.index;
             tf.timestamp = pf.timestamp;
             tf.features.copy_from(&pf.features);
             tf.reset_matches();
-            tf.t_cw = CameraFromWorld(Se3::from_parts(nalgebra::Translation3::from(trans), rot));
+            tf.t_cw = CameraFromWorld(bf.guess.unwrap_or(p1));
             bf.projected.clear();
             for (k, &(_, pos, desc, max_d)) in bf.points.iter().enumerate() {
                 let pc = tf.t_cw.transform(&pos);
@@ -122,6 +128,7 @@ impl System {
             }
             let n = self.tracker.optimize_pose(map, tf);
             if n >= self.tracker.config.min_inliers {
+                bf.guess = Some(tf.t_cw.0);
                 self.trajectory.push(TrajectoryEntry {
                     timestamp: tf.timestamp,
                     reference: Some(kf0),

@@ -118,6 +118,7 @@ impl System {
             self.frame.points.copy_from_slice(&pts);
         }
         self.tracker.start(kf1, self.frame.index);
+        self.collapse.start(self.frame.t_cw);
         tracing::info!(
             frame = self.frame.index,
             points = map.n_points(),
