@@ -114,19 +114,30 @@ pub(super) fn epipolar_score(
     super::models::score_f(&f, x1, x2, inv_s2, &mut cur)
 }
 
-/// One of the four motions of `E = K^T F K` (all four share the essential matrix, so any
-/// one scores the epipolar geometry of F).
-pub(super) fn essential_motion(
+/// The decomposition of `E = K^T F K`: its two rotations and the translation direction; the
+/// four motions are `(R1 | R2, +-t)`, all with the same essential matrix.
+fn essential_parts(
     f21: &Matrix3<f64>,
     k: &Matrix3<f64>,
-) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+) -> Option<(Matrix3<f64>, Matrix3<f64>, Vector3<f64>)> {
     let e = k.transpose() * f21 * k;
     let svd = e.svd(true, true);
     let (u, vt) = (svd.u?, svd.v_t?);
     let w = Matrix3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
-    let r = u * w * vt;
-    let r = if r.determinant() < 0.0 { -r } else { r };
-    Some((r, u.column(2).normalize()))
+    let fix = |m: Matrix3<f64>| if m.determinant() < 0.0 { -m } else { m };
+    Some((
+        fix(u * w * vt),
+        fix(u * w.transpose() * vt),
+        u.column(2).normalize(),
+    ))
+}
+
+/// One of the four motions of `E` (any one scores the epipolar geometry of F).
+pub(super) fn essential_motion(
+    f21: &Matrix3<f64>,
+    k: &Matrix3<f64>,
+) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+    essential_parts(f21, k).map(|(r1, _, t)| (r1, t))
 }
 
 fn finish(
@@ -158,15 +169,7 @@ pub(super) fn reconstruct_f(
     cfg: &TwoViewConfig,
 ) -> Result<TwoViewMotion, TwoViewError> {
     let n_inl = inl.iter().filter(|&&b| b).count();
-    let e = k.transpose() * f21 * k;
-    let svd = e.svd(true, true);
-    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
-        return Err(TwoViewError::NoModel);
-    };
-    let t = u.column(2).normalize();
-    let w = Matrix3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
-    let fix = |m: Matrix3<f64>| if m.determinant() < 0.0 { -m } else { m };
-    let (r1, r2) = (fix(u * w * vt), fix(u * w.transpose() * vt));
+    let (r1, r2, t) = essential_parts(f21, k).ok_or(TwoViewError::NoModel)?;
     let hyps = [(r1, t), (r2, t), (r1, -t), (r2, -t)];
     let checks: Vec<Check> = hyps
         .iter()
