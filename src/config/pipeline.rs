@@ -74,6 +74,11 @@ pub struct LocalMappingConfig {
     pub min_observations: usize,
     /// Keyframe culling: share of redundant points.
     pub redundancy: f64,
+    /// Keyframe culling starts once the map holds this many keyframes (ours, not ORB-SLAM's):
+    /// a young map's keyframes are its only baselines. Right after initialisation on slow
+    /// forward or turning motion a keyframe is inserted every frame and each looks redundant
+    /// to the next, so culling kept 4-5 keyframes a frame apart and the map never gained depth.
+    pub cull_after_keyframes: usize,
     pub ba_iterations_robust: usize,
     pub ba_iterations: usize,
 }
@@ -85,6 +90,7 @@ impl Default for LocalMappingConfig {
             min_found_ratio: 0.25,
             min_observations: 2,
             redundancy: 0.9,
+            cull_after_keyframes: 10,
             ba_iterations_robust: 5,
             ba_iterations: 10,
         }

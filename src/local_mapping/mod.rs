@@ -105,6 +105,12 @@ impl LocalMapper {
         // Duplicate fusion: the new keyframe's points into each neighbour (a step each), then
         // the neighbours' points into it.
         let mut plan = None;
+        tracing::debug!(
+            keyframe = ?kf,
+            neighbours = neighbours.len(),
+            created = created.len(),
+            "keyframe triangulated"
+        );
         access(&mut |map: &mut Map| {
             self.recent.append(&mut created);
             map.update_connections(kf);
@@ -405,6 +411,9 @@ impl LocalMapper {
     }
 
     fn cull_keyframes(&mut self, map: &mut Map, kf: KeyFrameId) {
+        if map.n_keyframes() < self.config.cull_after_keyframes {
+            return;
+        }
         let Some(k) = map.keyframe(kf) else { return };
         let candidates: Vec<KeyFrameId> = k.covisibles.iter().map(|&(f, _)| f).collect();
         for c in candidates {

@@ -36,13 +36,17 @@ pub struct EpipolarSearch<'a> {
     pub check_orientation: bool,
 }
 
-/// Matches keypoints of a reference frame to a new frame within a window around each reference
-/// keypoint, at the same pyramid level (ORB-SLAM uses only the finest level and doubles the
+/// Matches keypoints of a reference frame to a new frame within a window around where each
+/// reference keypoint was last matched (`centres`, one per reference keypoint: ORB-SLAM's
+/// "previously matched" positions, so the window follows the features while the image moves
+/// more than a window between the reference and the current frame, as on a turn), at the same
+/// pyramid level (ORB-SLAM uses only the finest level and doubles the
 /// feature count during initialisation instead; matching every level within its octave gives the
 /// same density without a second extractor). Returns, per reference keypoint, the matched index
 /// in the new frame.
 pub fn search_for_initialization(
     reference: FeatureView,
+    centres: &[[f32; 2]],
     current: FeatureView,
     cur_grid: &FeatureGrid,
     search: WindowSearch,
@@ -61,9 +65,8 @@ pub fn search_for_initialization(
     let mut cand = Vec::new();
     let mut rot = RotationHistogram::default();
     for (i, k1) in ref_kps.iter().enumerate() {
-        cur_grid.in_area(
-            cur_kps, k1.ux, k1.uy, window, k1.octave, k1.octave, &mut cand,
-        );
+        let [cx, cy] = centres.get(i).copied().unwrap_or([k1.ux, k1.uy]);
+        cur_grid.in_area(cur_kps, cx, cy, window, k1.octave, k1.octave, &mut cand);
         let (mut best, mut second, mut best_j) = (u32::MAX, u32::MAX, u32::MAX);
         for &j in &cand {
             let d = hamming(&ref_desc[i], &cur_desc[j as usize]);
@@ -342,6 +345,52 @@ mod tests {
         let mut out = Vec::new();
         claims.pairs_into(&mut out);
         out
+    }
+
+    /// On a turn the image moves more than a window between the reference and the current
+    /// frame: a window at the reference position finds nothing, one at the position where each
+    /// feature was last matched finds every feature again.
+    #[test]
+    fn initialisation_window_follows_the_last_matched_position() {
+        let shift = 250.0f32;
+        let kp = |x: f32, y: f32| KeyPoint {
+            x,
+            y,
+            ux: x,
+            uy: y,
+            ..Default::default()
+        };
+        let reference: Vec<KeyPoint> = (0..40)
+            .map(|i| kp(20.0 + 10.0 * (i % 10) as f32, 40.0 + 30.0 * (i / 10) as f32))
+            .collect();
+        let current: Vec<KeyPoint> = reference.iter().map(|k| kp(k.ux + shift, k.uy)).collect();
+        let desc: Vec<Descriptor> = (0..40u64)
+            .map(|i| {
+                [
+                    i.wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                    !i,
+                    i << 7,
+                    i ^ 0xFF00,
+                ]
+            })
+            .collect();
+        let mut grid = FeatureGrid::new(64, 48, (0.0, 0.0, 640.0, 480.0), 64);
+        grid.assign(&current);
+        let search = WindowSearch {
+            window: 100.0,
+            ratio: 0.9,
+            check_orientation: true,
+        };
+        let mut out = Vec::new();
+        let at_reference: Vec<[f32; 2]> = reference.iter().map(|k| [k.ux, k.uy]).collect();
+        let last_seen: Vec<[f32; 2]> = current.iter().map(|k| [k.ux - 5.0, k.uy + 3.0]).collect();
+        let view_r = FeatureView::new(&reference, &desc);
+        let view_c = FeatureView::new(&current, &desc);
+        let n = search_for_initialization(view_r, &at_reference, view_c, &grid, search, &mut out);
+        assert_eq!(n, 0);
+        let n = search_for_initialization(view_r, &last_seen, view_c, &grid, search, &mut out);
+        assert_eq!(n, 40);
+        assert!(out.iter().enumerate().all(|(i, m)| *m == Some(i as u32)));
     }
 
     #[test]

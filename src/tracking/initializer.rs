@@ -33,6 +33,8 @@ pub struct Initializer {
     pub reference_has_color: bool,
     grid: FeatureGrid,
     matches: Vec<Option<u32>>,
+    /// Where each reference keypoint was last matched: the centre of its next search window.
+    prev_matched: Vec<[f32; 2]>,
     pub config: TwoViewConfig,
     /// Minimum features in a reference frame and minimum matches to attempt (ORB-SLAM: 100).
     pub min_matches: usize,
@@ -74,6 +76,7 @@ impl Initializer {
                 max_features,
             ),
             matches: Vec::with_capacity(max_features),
+            prev_matched: Vec::with_capacity(max_features),
             config: TwoViewConfig::default(),
             min_matches: 100,
             pending: (0..PENDING_CAPACITY)
@@ -131,6 +134,9 @@ impl Initializer {
         self.reference_has_color = rgb.is_some();
         if let Some(r) = &self.reference {
             self.grid.assign(&r.keypoints);
+            self.prev_matched.clear();
+            self.prev_matched
+                .extend(r.keypoints.iter().map(|k| [k.ux, k.uy]));
         }
     }
 
@@ -159,11 +165,18 @@ impl Initializer {
         };
         let n = search_for_initialization(
             FeatureView::new(&r.keypoints, &r.descriptors),
+            &self.prev_matched,
             f.features.view(),
             &f.grid,
             search,
             &mut self.matches,
         );
+        for (c, m) in self.prev_matched.iter_mut().zip(&self.matches) {
+            if let Some(j) = m {
+                let k = &f.features.keypoints[*j as usize];
+                *c = [k.ux, k.uy];
+            }
+        }
         if n < self.min_matches {
             // Too far from the reference: start over from this frame (ORB-SLAM's policy).
             if f.features.len() > self.min_matches {

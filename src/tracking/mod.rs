@@ -438,6 +438,7 @@ impl Tracker {
             self.t_local_map.record(t1.elapsed());
         }
         let ok = n >= self.config.min_inliers;
+        tracing::trace!(frame = f.index, inliers = n, "tracked");
         self.reference_pose = self
             .reference_kf
             .and_then(|r| map.keyframe(r).map(|k| (r, k.t_cw)));
