@@ -51,6 +51,7 @@ fn run_on_synthetic_writes_every_output_with_stable_report_keys() {
     for k in [
         "tracking",
         "orb_extraction",
+        "initialisation",
         "map_lock_wait",
         "local_ba",
         "loop_closing",

@@ -10,6 +10,8 @@ pub struct TimingReport {
     /// Frame available -> pose out.
     pub tracking: Percentiles,
     pub orb_extraction: Percentiles,
+    /// One initialisation attempt (a frame before the map exists, on the tracking thread).
+    pub initialisation: Percentiles,
     /// Motion-model (or reference-keyframe) matching and pose optimisation.
     pub pose_prediction: Percentiles,
     pub local_map_tracking: Percentiles,

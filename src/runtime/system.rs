@@ -73,6 +73,9 @@ pub struct SystemStats {
     /// Frames before initialisation tracked afterwards against the first map.
     pub backfilled_frames: usize,
     pub orb_extraction: StageTimer,
+    /// Initialisation attempts (matching, H/F, reconstruction, two-view BA), on the tracking
+    /// thread: the frames before the map exists.
+    pub initialisation: StageTimer,
     pub tracking: StageTimer,
     /// Detection + correction time of each closed loop.
     pub loop_closing: StageTimer,
@@ -267,6 +270,7 @@ impl System {
                 resets: 0,
                 backfilled_frames: 0,
                 orb_extraction: StageTimer::with_capacity(expected_frames.max(16)),
+                initialisation: StageTimer::with_capacity(1024),
                 tracking: StageTimer::with_capacity(expected_frames.max(16)),
                 loop_closing: StageTimer::with_capacity(64),
                 loops_closed: 0,

@@ -168,6 +168,7 @@ fn note_capture_stats(s: &Session, r: &mut Running) {
 fn fill_tracking_report(report: &mut Report, system: &System, frame_timer: &StageTimer) {
     report.timing_ms.tracking = frame_timer.percentiles();
     report.timing_ms.orb_extraction = system.stats.orb_extraction.percentiles();
+    report.timing_ms.initialisation = system.stats.initialisation.percentiles();
     report.timing_ms.local_ba = system.stats.local_mapping.percentiles();
     report.timing_ms.pose_prediction = system.tracker.t_prediction.percentiles();
     report.timing_ms.local_map_tracking = system.tracker.t_local_map.percentiles();

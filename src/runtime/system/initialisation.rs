@@ -16,6 +16,7 @@ impl System {
         let k = self.camera.k();
         let t_attempt = std::time::Instant::now();
         let attempt = self.init.attempt(&self.frame, gray, rgb, &k, &mut ready);
+        self.stats.initialisation.record(t_attempt.elapsed());
         tracing::debug!(
             frame = self.frame.index,
             features = self.frame.features.len(),
