@@ -12,6 +12,8 @@ pub struct TimingReport {
     pub orb_extraction: Percentiles,
     /// One initialisation attempt (a frame before the map exists, on the tracking thread).
     pub initialisation: Percentiles,
+    /// Threaded mode: solving one attempt on the initialisation thread (off the frame path).
+    pub initialisation_solve: Percentiles,
     /// Motion-model (or reference-keyframe) matching and pose optimisation.
     pub pose_prediction: Percentiles,
     pub local_map_tracking: Percentiles,

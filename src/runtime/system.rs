@@ -31,6 +31,7 @@ use std::collections::HashMap;
 
 mod backfill;
 mod finish;
+mod init_solver;
 mod initialisation;
 mod map_files;
 mod mapping_thread;
@@ -76,6 +77,8 @@ pub struct SystemStats {
     /// Initialisation attempts (matching, H/F, reconstruction, two-view BA), on the tracking
     /// thread: the frames before the map exists.
     pub initialisation: StageTimer,
+    /// Threaded mode: solving an attempt on the initialisation thread.
+    pub initialisation_solve: StageTimer,
     pub tracking: StageTimer,
     /// Detection + correction time of each closed loop.
     pub loop_closing: StageTimer,
@@ -124,6 +127,8 @@ pub struct System {
     vocabulary: Option<Arc<Vocabulary>>,
     places: Arc<Mutex<PlaceIndex>>,
     init: Initializer,
+    /// Threaded mode: the costly half of initialisation attempts on its own thread.
+    init_solver: Option<init_solver::InitSolver>,
     /// Poses of the frames before initialisation, computed a few per frame after it.
     backfill: Backfill,
     /// Track against the map without changing it (no keyframes, no BA, no reset).
@@ -248,6 +253,17 @@ impl System {
             localize_only: false,
             finished: false,
             init: Initializer::new(max_features, w, h).with_config(config.initialisation.clone()),
+            init_solver: if threaded {
+                init_solver::InitSolver::spawn(
+                    camera.k(),
+                    config.initialisation.clone(),
+                    max_features,
+                    w,
+                    h,
+                )
+            } else {
+                None
+            },
             backfill: Backfill::default(),
             frame: TrackedFrame::new(max_features, w, h),
             trajectory: Vec::with_capacity(expected_frames),
@@ -271,6 +287,7 @@ impl System {
                 backfilled_frames: 0,
                 orb_extraction: StageTimer::with_capacity(expected_frames.max(16)),
                 initialisation: StageTimer::with_capacity(1024),
+                initialisation_solve: StageTimer::with_capacity(1024),
                 tracking: StageTimer::with_capacity(expected_frames.max(16)),
                 loop_closing: StageTimer::with_capacity(64),
                 loops_closed: 0,
@@ -533,6 +550,9 @@ impl System {
         self.semidense.reset();
         self.tracker.reset(TrackingState::NotInitialised);
         self.init.reset();
+        if let Some(s) = self.init_solver.as_mut() {
+            s.generation += 1;
+        }
         self.collapse.reset();
         self.stats.resets += 1;
         // The poses so far are in the discarded map's world frame (every reset discards the

@@ -52,6 +52,32 @@ pub struct Initializer {
     pub max_refused_attempts: usize,
 }
 
+/// The matched pixels of one attempt (reference `x1`, current `x2`) and the keypoint pairs.
+pub struct InitProblem {
+    pub x1: Vec<Vector2<f64>>,
+    pub x2: Vec<Vector2<f64>>,
+    pub pairs: Vec<(u32, u32)>,
+}
+
+/// What [`Initializer::prepare`] leaves to do.
+pub enum Prepared {
+    /// Nothing to solve (a new reference, too few matches).
+    Done(InitAttempt),
+    Solve(InitProblem),
+}
+
+/// The costly part of an attempt (H and F, reconstruction, two-view BA: 10-25 ms here, more
+/// on a small ARM core): needs nothing but the problem, so it can run on another thread.
+pub fn solve(
+    problem: &InitProblem,
+    k: &Matrix3<f64>,
+    config: &TwoViewConfig,
+) -> Result<TwoViewMotion, TwoViewError> {
+    let mut m = initialize(&problem.x1, &problem.x2, k, config)?;
+    refine_two_view(&mut m, &problem.x1, &problem.x2, k, config.sigma);
+    Ok(m)
+}
+
 /// A frame between the reference and initialisation, kept for backfilling its pose.
 #[derive(Clone, Default)]
 pub struct PendingFrame {
@@ -141,7 +167,8 @@ impl Initializer {
     }
 
     /// Tries to initialise from the reference to `f`. On `Ready`, returns the motion and the
-    /// matches (reference keypoint -> current keypoint) through `out`.
+    /// matches (reference keypoint -> current keypoint) through `out`. The three steps below
+    /// in a row: the deterministic mode, and the model of the asynchronous one.
     pub fn attempt(
         &mut self,
         f: &TrackedFrame,
@@ -151,11 +178,23 @@ impl Initializer {
         out: &mut Option<(TwoViewMotion, Vec<(u32, u32)>)>,
     ) -> InitAttempt {
         *out = None;
+        match self.prepare(f, gray, rgb) {
+            Prepared::Done(a) => a,
+            Prepared::Solve(problem) => {
+                let solved = solve(&problem, k, &self.config);
+                self.conclude(f, gray, rgb, problem, solved, out)
+            }
+        }
+    }
+
+    /// The cheap part of an attempt, on the tracking thread: the reference, the window search
+    /// and the matched pixels (or why there is nothing to solve).
+    pub fn prepare(&mut self, f: &TrackedFrame, gray: &[u8], rgb: Option<&[u8]>) -> Prepared {
         let Some(r) = &self.reference else {
             if f.features.len() > self.min_matches {
                 self.set_reference(f, gray, rgb);
             }
-            return InitAttempt::NewReference;
+            return Prepared::Done(InitAttempt::NewReference);
         };
         // ORB-SLAM's initialisation search: a 100 px window, ratio 0.9, rotation check.
         let search = WindowSearch {
@@ -184,7 +223,7 @@ impl Initializer {
             } else {
                 self.reset();
             }
-            return InitAttempt::TooFewMatches(n);
+            return Prepared::Done(InitAttempt::TooFewMatches(n));
         }
         let pairs: Vec<(u32, u32)> = self
             .matches
@@ -192,28 +231,38 @@ impl Initializer {
             .enumerate()
             .filter_map(|(i, m)| m.map(|j| (i as u32, j)))
             .collect();
-        let x1: Vec<Vector2<f64>> = pairs
+        let x1 = pairs
             .iter()
             .map(|&(i, _)| {
-                Vector2::new(
-                    r.keypoints[i as usize].ux as f64,
-                    r.keypoints[i as usize].uy as f64,
-                )
+                let k = &r.keypoints[i as usize];
+                Vector2::new(k.ux as f64, k.uy as f64)
             })
             .collect();
-        let x2: Vec<Vector2<f64>> = pairs
+        let x2 = pairs
             .iter()
             .map(|&(_, j)| {
-                Vector2::new(
-                    f.features.keypoints[j as usize].ux as f64,
-                    f.features.keypoints[j as usize].uy as f64,
-                )
+                let k = &f.features.keypoints[j as usize];
+                Vector2::new(k.ux as f64, k.uy as f64)
             })
             .collect();
-        match initialize(&x1, &x2, k, &self.config) {
-            Ok(mut m) => {
-                refine_two_view(&mut m, &x1, &x2, k, self.config.sigma);
-                *out = Some((m, pairs));
+        Prepared::Solve(InitProblem { x1, x2, pairs })
+    }
+
+    /// The outcome of a solved attempt for frame `f` (the frame [`prepare`](Self::prepare)
+    /// matched): keeps or renews the reference and the frames kept for backfilling.
+    pub fn conclude(
+        &mut self,
+        f: &TrackedFrame,
+        gray: &[u8],
+        rgb: Option<&[u8]>,
+        problem: InitProblem,
+        solved: Result<TwoViewMotion, TwoViewError>,
+        out: &mut Option<(TwoViewMotion, Vec<(u32, u32)>)>,
+    ) -> InitAttempt {
+        *out = None;
+        match solved {
+            Ok(m) => {
+                *out = Some((m, problem.pairs));
                 InitAttempt::Ready
             }
             Err(e) => {

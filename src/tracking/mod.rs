@@ -13,7 +13,9 @@ use nalgebra::{Vector2, Vector3};
 
 pub use collapse::CollapseMonitor;
 pub use frame::TrackedFrame;
-pub use initializer::{InitAttempt, Initializer};
+pub use initializer::{
+    solve as solve_initialisation, InitAttempt, InitProblem, Initializer, Prepared,
+};
 
 use crate::camera_model::PinholeRadtan;
 use crate::geometry::{CameraFromWorld, Se3};

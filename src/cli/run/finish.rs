@@ -169,6 +169,7 @@ fn fill_tracking_report(report: &mut Report, system: &System, frame_timer: &Stag
     report.timing_ms.tracking = frame_timer.percentiles();
     report.timing_ms.orb_extraction = system.stats.orb_extraction.percentiles();
     report.timing_ms.initialisation = system.stats.initialisation.percentiles();
+    report.timing_ms.initialisation_solve = system.stats.initialisation_solve.percentiles();
     report.timing_ms.local_ba = system.stats.local_mapping.percentiles();
     report.timing_ms.pose_prediction = system.tracker.t_prediction.percentiles();
     report.timing_ms.local_map_tracking = system.tracker.t_local_map.percentiles();

@@ -31,6 +31,9 @@ impl System {
             self.stats.loops_closed_by_revisit = loops.revisits_closed;
             self.stats.loop_closures = loops.history;
         }
+        if let Some(s) = self.init_solver.as_mut() {
+            s.join();
+        }
         if self.backfill.active() {
             let map_arc = Arc::clone(&self.map);
             let mut m = lock(&map_arc);

@@ -1,6 +1,8 @@
 //! Map initialisation from two views (the first keyframes, scaled to median depth 1).
 
 use super::*;
+use crate::geometry::two_view::TwoViewMotion;
+use crate::tracking::Prepared;
 
 /// Consecutive frames without initialisation after which a warning says why.
 const NOT_INITIALISED_WARNING_FRAMES: usize = 90;
@@ -12,34 +14,170 @@ impl System {
         gray: &[u8],
         rgb: Option<&[u8]>,
     ) -> TrackingState {
+        if self.init_solver.is_some() {
+            return self.initialize_async(map, gray, rgb);
+        }
         let mut ready = None;
         let k = self.camera.k();
         let t_attempt = std::time::Instant::now();
         let attempt = self.init.attempt(&self.frame, gray, rgb, &k, &mut ready);
         self.stats.initialisation.record(t_attempt.elapsed());
+        self.note_attempt(self.frame.index, &attempt);
+        let Some((motion, pairs)) = ready else {
+            return TrackingState::NotInitialised;
+        };
+        self.build_initial_map(map, gray, rgb, motion, pairs)
+    }
+
+    /// The threaded mode: concludes the attempt in flight when its result has come, and sends
+    /// the current frame's problem to the solver when none is in flight. On a map, keyframe 1
+    /// is the attempt's frame and the current frame is tracked in the new map.
+    fn initialize_async(
+        &mut self,
+        map: &mut Map,
+        gray: &[u8],
+        rgb: Option<&[u8]>,
+    ) -> TrackingState {
+        let t0 = std::time::Instant::now();
+        let state = self.initialize_async_step(map, gray, rgb);
+        self.stats.initialisation.record(t0.elapsed());
+        state
+    }
+
+    fn initialize_async_step(
+        &mut self,
+        map: &mut Map,
+        gray: &[u8],
+        rgb: Option<&[u8]>,
+    ) -> TrackingState {
+        let Some(solver) = self.init_solver.as_mut() else {
+            return TrackingState::NotInitialised;
+        };
+        let received = match solver.try_result() {
+            Ok(r) => r,
+            Err(()) => {
+                // The solver thread is gone: attempt on this thread from now on.
+                tracing::warn!(
+                    "initialisation solver stopped: attempts run on the tracking thread"
+                );
+                self.init_solver = None;
+                return self.initialize(map, gray, rgb);
+            }
+        };
+        let current = solver.generation;
+        let busy = solver.outstanding > 0;
+        let Some(mut c) = solver.candidate.take() else {
+            return TrackingState::NotInitialised;
+        };
+        if let Some((generation, problem, solved, solve_ms)) = received {
+            self.stats.initialisation_solve.record_ms(solve_ms);
+            if generation == current {
+                let mut ready = None;
+                let attempt =
+                    self.init
+                        .conclude(&c.frame, &c.gray, c.rgb(), problem, solved, &mut ready);
+                self.note_attempt(c.frame.index, &attempt);
+                if let Some((motion, pairs)) = ready {
+                    let state = self.initialise_from_candidate(map, &mut c, motion, pairs);
+                    self.put_candidate(c);
+                    return state;
+                }
+            }
+        }
+        self.put_candidate(c);
+        if busy {
+            // An attempt is still being solved: this frame is not attempted.
+            return TrackingState::NotInitialised;
+        }
+        match self.init.prepare(&self.frame, gray, rgb) {
+            Prepared::Done(attempt) => self.note_attempt(self.frame.index, &attempt),
+            Prepared::Solve(problem) => {
+                let frame = &self.frame;
+                if let Some(solver) = self.init_solver.as_mut() {
+                    if let Some(c) = solver.candidate.as_mut() {
+                        c.frame.copy_from(frame);
+                        c.gray.clear();
+                        c.gray.extend_from_slice(gray);
+                        c.rgb.clear();
+                        if let Some(x) = rgb {
+                            c.rgb.extend_from_slice(x);
+                        }
+                        c.has_color = rgb.is_some();
+                    }
+                    solver.send(problem);
+                }
+            }
+        }
+        TrackingState::NotInitialised
+    }
+
+    fn put_candidate(&mut self, c: Box<init_solver::Candidate>) {
+        if let Some(s) = self.init_solver.as_mut() {
+            s.candidate = Some(c);
+        }
+    }
+
+    /// Builds the first map with the candidate as keyframe 1 (its pose enters the trajectory),
+    /// then tracks the current frame in it.
+    fn initialise_from_candidate(
+        &mut self,
+        map: &mut Map,
+        c: &mut init_solver::Candidate,
+        motion: TwoViewMotion,
+        pairs: Vec<(u32, u32)>,
+    ) -> TrackingState {
+        std::mem::swap(&mut self.frame, &mut c.frame);
+        let state = self.build_initial_map(map, &c.gray, c.rgb(), motion, pairs);
+        if state != TrackingState::Ok {
+            std::mem::swap(&mut self.frame, &mut c.frame);
+            return state;
+        }
+        let f = &self.frame;
+        self.trajectory.push(TrajectoryEntry {
+            timestamp: f.timestamp,
+            reference: self.tracker.reference_kf(),
+            t_c_ref: Se3::identity(),
+            t_cw: f.t_cw,
+        });
+        self.stats.tracked_frames += 1;
+        self.tracker.commit(&self.frame);
+        std::mem::swap(&mut self.frame, &mut c.frame);
+        self.tracker.track(map, &mut self.frame)
+    }
+
+    /// Counts a failed attempt and says once, after about 3 s, why initialisation keeps failing.
+    fn note_attempt(&mut self, frame: u64, attempt: &InitAttempt) {
         tracing::debug!(
-            frame = self.frame.index,
-            features = self.frame.features.len(),
+            frame,
             reference = self.init.reference_index,
             ?attempt,
             "initialisation attempt"
         );
-        if attempt != InitAttempt::Ready {
-            self.uninitialised_frames += 1;
-            // Say so once when initialisation keeps failing (about 3 s at 30 fps), with why.
-            if self.uninitialised_frames == NOT_INITIALISED_WARNING_FRAMES {
-                tracing::warn!(
-                    frames = self.uninitialised_frames,
-                    last_attempt = ?attempt,
-                    "not initialised yet: the camera needs to translate (not only rotate) over a textured, non-planar scene"
-                );
-            }
-            return TrackingState::NotInitialised;
+        if *attempt == InitAttempt::Ready {
+            self.uninitialised_frames = 0;
+            return;
         }
-        self.uninitialised_frames = 0;
-        let Some((motion, pairs)) = ready else {
-            return TrackingState::NotInitialised;
-        };
+        self.uninitialised_frames += 1;
+        if self.uninitialised_frames == NOT_INITIALISED_WARNING_FRAMES {
+            tracing::warn!(
+                frames = self.uninitialised_frames,
+                last_attempt = ?attempt,
+                "not initialised yet: the camera needs to translate (not only rotate) over a textured, non-planar scene"
+            );
+        }
+    }
+
+    /// The first two keyframes (the reference and `self.frame`) and their points, scaled to
+    /// median depth 1; `self.frame` continues from keyframe 1.
+    fn build_initial_map(
+        &mut self,
+        map: &mut Map,
+        gray: &[u8],
+        rgb: Option<&[u8]>,
+        motion: TwoViewMotion,
+        pairs: Vec<(u32, u32)>,
+    ) -> TrackingState {
+        let t_build = std::time::Instant::now();
         let Some(reference) = self.init.reference.take() else {
             return TrackingState::NotInitialised;
         };
@@ -90,7 +228,7 @@ impl System {
         map.update_connections(kf1);
         // (The initialiser refined the two views with their own BA: a map of two keyframes
         // has nothing for a global BA to add.)
-        let attempt_ms = t_attempt.elapsed().as_secs_f64() * 1e3;
+        let build_ms = t_build.elapsed().as_secs_f64() * 1e3;
         // Scale the map to median depth 1.
         let Some(median) = median_depth(map, kf0).filter(|m| *m > 0.0) else {
             map.reset();
@@ -123,7 +261,7 @@ impl System {
         tracing::info!(
             frame = self.frame.index,
             points = map.n_points(),
-            attempt_ms,
+            build_ms,
             "map initialised"
         );
         self.stats.keyframes_created += 2;
