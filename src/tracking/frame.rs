@@ -69,3 +69,37 @@ impl TrackedFrame {
         self.inlier_points().count()
     }
 }
+
+/// A frame's grey (and colour) image kept beyond the frame, in reused buffers: the
+/// initialisation reference and the frame of an attempt in flight become keyframes later.
+#[derive(Clone, Default)]
+pub struct KeptImages {
+    pub gray: Vec<u8>,
+    rgb: Vec<u8>,
+    has_color: bool,
+}
+
+impl KeptImages {
+    pub fn with_capacity(pixels: usize) -> Self {
+        KeptImages {
+            gray: Vec::with_capacity(pixels),
+            rgb: Vec::with_capacity(pixels * 3),
+            has_color: false,
+        }
+    }
+
+    /// Copies `gray` and `rgb` in (no allocation once the buffers have the frame's size).
+    pub fn set(&mut self, gray: &[u8], rgb: Option<&[u8]>) {
+        self.gray.clear();
+        self.gray.extend_from_slice(gray);
+        self.rgb.clear();
+        if let Some(c) = rgb {
+            self.rgb.extend_from_slice(c);
+        }
+        self.has_color = rgb.is_some();
+    }
+
+    pub fn rgb(&self) -> Option<&[u8]> {
+        self.has_color.then_some(&self.rgb[..])
+    }
+}

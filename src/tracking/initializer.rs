@@ -3,7 +3,7 @@
 
 use nalgebra::{Matrix3, Vector2};
 
-use super::frame::TrackedFrame;
+use super::frame::{KeptImages, TrackedFrame};
 use crate::features::FeatureView;
 use crate::features::Features;
 use crate::geometry::two_view::{initialize, TwoViewConfig, TwoViewError, TwoViewMotion};
@@ -28,9 +28,7 @@ pub struct Initializer {
     pub reference: Option<Features>,
     pub reference_index: u64,
     pub reference_timestamp: f64,
-    pub reference_gray: Vec<u8>,
-    pub reference_rgb: Vec<u8>,
-    pub reference_has_color: bool,
+    pub reference_images: KeptImages,
     grid: FeatureGrid,
     matches: Vec<Option<u32>>,
     /// Where each reference keypoint was last matched: the centre of its next search window.
@@ -92,9 +90,7 @@ impl Initializer {
             reference: None,
             reference_index: 0,
             reference_timestamp: 0.0,
-            reference_gray: Vec::with_capacity(width * height),
-            reference_rgb: Vec::with_capacity(width * height * 3),
-            reference_has_color: false,
+            reference_images: KeptImages::with_capacity(width * height),
             grid: FeatureGrid::new(
                 (width / 10).max(1),
                 (height / 10).max(1),
@@ -151,13 +147,7 @@ impl Initializer {
         self.reference = Some(f.features.clone());
         self.reference_index = f.index;
         self.reference_timestamp = f.timestamp;
-        self.reference_gray.clear();
-        self.reference_gray.extend_from_slice(gray);
-        self.reference_rgb.clear();
-        if let Some(c) = rgb {
-            self.reference_rgb.extend_from_slice(c);
-        }
-        self.reference_has_color = rgb.is_some();
+        self.reference_images.set(gray, rgb);
         if let Some(r) = &self.reference {
             self.grid.assign(&r.keypoints);
             self.prev_matched.clear();

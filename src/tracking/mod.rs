@@ -12,7 +12,7 @@ mod local_map;
 use nalgebra::{Vector2, Vector3};
 
 pub use collapse::CollapseMonitor;
-pub use frame::TrackedFrame;
+pub use frame::{KeptImages, TrackedFrame};
 pub use initializer::{
     solve as solve_initialisation, InitAttempt, InitProblem, Initializer, Prepared,
 };

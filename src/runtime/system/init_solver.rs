@@ -11,7 +11,7 @@ use crossbeam_channel::{bounded, Receiver, Sender};
 use nalgebra::Matrix3;
 
 use crate::geometry::two_view::{TwoViewConfig, TwoViewError, TwoViewMotion};
-use crate::tracking::{solve_initialisation, InitProblem, TrackedFrame};
+use crate::tracking::{solve_initialisation, InitProblem, KeptImages, TrackedFrame};
 
 /// A solved attempt: the generation it was asked in, the problem, the outcome, solve time.
 pub(super) type Solved = (u64, InitProblem, Result<TwoViewMotion, TwoViewError>, f64);
@@ -20,15 +20,7 @@ pub(super) type Solved = (u64, InitProblem, Result<TwoViewMotion, TwoViewError>,
 /// become keyframe 1), preallocated and reused.
 pub(super) struct Candidate {
     pub frame: TrackedFrame,
-    pub gray: Vec<u8>,
-    pub rgb: Vec<u8>,
-    pub has_color: bool,
-}
-
-impl Candidate {
-    pub fn rgb(&self) -> Option<&[u8]> {
-        self.has_color.then_some(&self.rgb[..])
-    }
+    pub images: KeptImages,
 }
 
 pub(super) struct InitSolver {
@@ -74,9 +66,7 @@ impl InitSolver {
             generation: 0,
             candidate: Some(Box::new(Candidate {
                 frame: TrackedFrame::new(max_features, width, height),
-                gray: Vec::with_capacity(width * height),
-                rgb: Vec::with_capacity(width * height * 3),
-                has_color: false,
+                images: KeptImages::with_capacity(width * height),
             })),
         })
     }

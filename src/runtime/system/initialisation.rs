@@ -73,9 +73,14 @@ impl System {
             self.stats.initialisation_solve.record_ms(solve_ms);
             if generation == current {
                 let mut ready = None;
-                let attempt =
-                    self.init
-                        .conclude(&c.frame, &c.gray, c.rgb(), problem, solved, &mut ready);
+                let attempt = self.init.conclude(
+                    &c.frame,
+                    &c.images.gray,
+                    c.images.rgb(),
+                    problem,
+                    solved,
+                    &mut ready,
+                );
                 self.note_attempt(c.frame.index, &attempt);
                 if let Some((motion, pairs)) = ready {
                     let state = self.initialise_from_candidate(map, &mut c, motion, pairs);
@@ -96,13 +101,7 @@ impl System {
                 if let Some(solver) = self.init_solver.as_mut() {
                     if let Some(c) = solver.candidate.as_mut() {
                         c.frame.copy_from(frame);
-                        c.gray.clear();
-                        c.gray.extend_from_slice(gray);
-                        c.rgb.clear();
-                        if let Some(x) = rgb {
-                            c.rgb.extend_from_slice(x);
-                        }
-                        c.has_color = rgb.is_some();
+                        c.images.set(gray, rgb);
                     }
                     solver.send(problem);
                 }
@@ -127,7 +126,7 @@ impl System {
         pairs: Vec<(u32, u32)>,
     ) -> TrackingState {
         std::mem::swap(&mut self.frame, &mut c.frame);
-        let state = self.build_initial_map(map, &c.gray, c.rgb(), motion, pairs);
+        let state = self.build_initial_map(map, &c.images.gray, c.images.rgb(), motion, pairs);
         if state != TrackingState::Ok {
             std::mem::swap(&mut self.frame, &mut c.frame);
             return state;
@@ -196,10 +195,7 @@ impl System {
             kf.descriptors.extend_from_slice(&reference.descriptors);
             kf.frame_index = init.reference_index;
             kf.timestamp = init.reference_timestamp;
-            kf.set_images(
-                &init.reference_gray,
-                init.reference_has_color.then_some(&init.reference_rgb[..]),
-            );
+            kf.set_images(&init.reference_images.gray, init.reference_images.rgb());
         }) else {
             return TrackingState::NotInitialised;
         };
