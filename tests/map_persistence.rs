@@ -146,3 +146,41 @@ fn damaged_or_foreign_map_files_are_refused_with_the_reason() {
         .unwrap_err();
     assert!(e.to_string().contains("max_keyframes"), "{e}");
 }
+
+/// A run with two maps in its atlas (a blackout in unmapped space started the second, not
+/// merged yet) saves both: a loaded map has the same maps with the same keyframes, and new
+/// maps made after loading get fresh ids.
+#[test]
+fn a_map_file_keeps_every_map_of_the_atlas() {
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
+    let c = &seq.config;
+    let mut f = Frame::new(c.width, c.height);
+    let mut a = System::new(&c.calibration(), &config(), 300, false);
+    // Frames 150..195 withheld: the camera moves on to a place no map has seen.
+    for i in (0..150).chain(195..235) {
+        seq.render_frame(i, &mut f);
+        a.process(&f.gray, Some(&f.rgb), f.timestamp, i as u64);
+    }
+    assert!(a.finish());
+    let atlas = a.atlas();
+    assert_eq!(atlas.maps.len(), 2, "{atlas:?}");
+    assert_eq!(atlas.primary, Some(0));
+    let second = atlas.maps[1];
+    assert!(second.1 >= 30 && second.2 >= 3, "{atlas:?}");
+    assert_eq!(a.trajectory_of(second.0).len(), second.1);
+    let per_map = |s: &System| {
+        let m = s.map();
+        m.map_ids()
+            .into_iter()
+            .map(|id| (id, m.n_keyframes_of(id)))
+            .collect::<Vec<_>>()
+    };
+    let saved = per_map(&a);
+    let snap = MapSnapshot::decode(&a.save_map().encode().unwrap()).unwrap();
+    let mut b = System::new(&c.calibration(), &config(), 10, false);
+    b.load_map(&snap).unwrap();
+    assert_eq!(per_map(&b), saved);
+    let mut m = b.map();
+    assert_eq!(m.active_map(), second.0);
+    assert_eq!(m.start_new_map(), second.0 + 1);
+}

@@ -121,3 +121,61 @@ fn an_exposure_step_is_tracked_through() {
         max_kf_ate_of_path: 0.01,
     });
 }
+
+/// A 45-frame blackout (a covered lens, a dropped link) during which the camera moves on to a
+/// part of the orbit no map has seen: relocalisation cannot succeed there, so a new map of
+/// the atlas starts at once, and place recognition merges it into the first map when the
+/// orbit comes back. Every frame after the blackout gets a pose, all in one frame at the end.
+#[test]
+fn a_blackout_in_unmapped_space_starts_a_new_map_that_is_merged_back() {
+    let out = tempfile::tempdir().unwrap();
+    let (ok, _, err) = sdslam(&[
+        "-q",
+        "run",
+        "synthetic",
+        "--deterministic",
+        "--no-semidense",
+        "--no-plots",
+        "--drop",
+        "150:45",
+        "--out",
+        out.path().to_str().unwrap(),
+    ]);
+    assert!(ok, "sdslam run failed: {err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("report.json")).unwrap())
+            .unwrap();
+    let frames = report["frames"].as_u64().unwrap() as f64;
+    assert_eq!(report["maps_made"], 2, "{}", report["maps"]);
+    assert_eq!(report["maps_merged"], 1, "{}", report["maps"]);
+    assert_eq!(
+        report["maps"].as_array().map(|m| m.len()),
+        Some(1),
+        "one map at the end: {}",
+        report["maps"]
+    );
+    let gt = read_tum_trajectory(&out.path().join("groundtruth.txt")).unwrap();
+    let traj = read_tum_trajectory(&out.path().join("trajectory.txt")).unwrap();
+    let kfs = read_tum_trajectory(&out.path().join("keyframes.txt")).unwrap();
+    let path: f64 = gt
+        .windows(2)
+        .map(|w| (w[1].t_wc.position() - w[0].t_wc.position()).norm())
+        .sum();
+    let tracked = traj.len() as f64 / frames;
+    let kf = ate(&gt, &kfs, 0.02, true).expect("keyframe ATE");
+    let worst = ate(&gt, &traj, 0.02, true).expect("frame ATE").max_m / path;
+    eprintln!(
+        "blackout 150:45: tracked {:.1}% of {frames} frames, keyframe ATE {:.4} m = {:.3}% of {path:.2} m, worst Ok frame {:.2}%",
+        100.0 * tracked,
+        kf.rmse_m,
+        100.0 * kf.rmse_m / path,
+        100.0 * worst
+    );
+    assert!(tracked >= 0.97, "tracked {tracked:.3}");
+    assert!(kf.rmse_m / path <= 0.01, "keyframe ATE {:.4} m", kf.rmse_m);
+    assert!(
+        worst <= 0.05,
+        "a frame reported Ok is off by {:.1}%",
+        100.0 * worst
+    );
+}

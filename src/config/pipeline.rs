@@ -31,6 +31,10 @@ pub struct TrackingConfig {
     /// starts over (ORB-SLAM resets at once; a short blackout should not cost the map).
     pub young_map_keyframes: usize,
     pub young_map_patience_frames: usize,
+    /// The atlas (ORB-SLAM3): lost in an established map, start a new map at once (while
+    /// still trying to relocalise in every map), merged later when place recognition joins
+    /// it to an older one. Off: stay lost until relocalisation succeeds.
+    pub new_map_when_lost: bool,
     /// Scale collapse (see `tracking::collapse`): over `collapse_keyframes` keyframes the
     /// median scene depth fell below `collapse_depth_shrink` of its value while the camera
     /// travelled less than `collapse_path_ratio` of the depth lost and turned less than
@@ -55,6 +59,7 @@ impl Default for TrackingConfig {
             relocalisation_candidates: 10,
             young_map_keyframes: 5,
             young_map_patience_frames: 30,
+            new_map_when_lost: true,
             collapse_path_ratio: 0.1,
             collapse_depth_shrink: 0.25,
             collapse_max_turn_deg: 15.0,

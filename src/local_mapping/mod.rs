@@ -128,7 +128,7 @@ impl LocalMapper {
         }
         let mut has_ba = false;
         access(&mut |map: &mut Map| {
-            has_ba = map.n_keyframes() > 2 && self.build_local_ba(map, kf);
+            has_ba = keyframes_in_map_of(map, kf) > 2 && self.build_local_ba(map, kf);
             self.ba_epoch = map.correction_epoch();
         });
         self.has_ba = has_ba;
@@ -411,7 +411,7 @@ impl LocalMapper {
     }
 
     fn cull_keyframes(&mut self, map: &mut Map, kf: KeyFrameId) {
-        if map.n_keyframes() < self.config.cull_after_keyframes {
+        if keyframes_in_map_of(map, kf) < self.config.cull_after_keyframes {
             return;
         }
         let Some(k) = map.keyframe(kf) else { return };
@@ -501,4 +501,9 @@ fn depth_unobservable(map: &Map, mp: crate::map::MapPointId) -> bool {
         }
     }
     min_cos > MIN_COS_PARALLAX_KEPT
+}
+
+/// Keyframes of the atlas map `kf` belongs to (a new map is young however big the others are).
+fn keyframes_in_map_of(map: &Map, kf: KeyFrameId) -> usize {
+    map.keyframe(kf).map_or(0, |k| map.n_keyframes_of(k.map_id))
 }

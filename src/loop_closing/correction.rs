@@ -5,7 +5,9 @@ use super::*;
 
 impl LoopCloser {
     /// Corrects the current keyframe's neighbourhood with `s_cw`, fuses the loop matches, adds
-    /// the loop edge and optimises the essential graph.
+    /// the loop edge and optimises the essential graph. When the loop keyframe is in another
+    /// map of the atlas, every keyframe of the current keyframe's map is corrected (the whole
+    /// map moves into the loop keyframe's frame) and the two maps are merged.
     pub(super) fn correct(
         &mut self,
         map: &mut Map,
@@ -22,10 +24,21 @@ impl LoopCloser {
         let t_wc = before[&kf].inverse();
         // Corrected S_iw for the current keyframe and its neighbours.
         let mut corrected: HashMap<KeyFrameId, Sim3> = HashMap::new();
-        let neighbours: Vec<KeyFrameId> = map
+        let mut neighbours: Vec<KeyFrameId> = map
             .keyframe(kf)
             .map(|k| k.covisibles.iter().map(|&(x, _)| x).collect())
             .unwrap_or_default();
+        let (from, into) = (map.map_of(kf), map.map_of(loop_kf));
+        let merge = from != into;
+        if let (true, Some(from)) = (merge, from) {
+            // The rest of the map after the neighbours, in arena order (reproducible).
+            let rest: Vec<KeyFrameId> = map
+                .keyframes_of(from)
+                .into_iter()
+                .filter(|k| *k != kf && !neighbours.contains(k))
+                .collect();
+            neighbours.extend(rest);
+        }
         // In a fixed order (the keyframe, then its neighbours by covisibility): a point seen
         // by several of them moves with the first, so runs are reproducible.
         let mut order = vec![kf];
@@ -66,10 +79,18 @@ impl LoopCloser {
             map.update_point_geometry(p);
         }
         let fused = fuse_and_link(map, kf, loop_kf, matched);
+        if let (true, Some(from), Some(into)) = (merge, from, into) {
+            map.merge_maps(from, into, kf, loop_kf);
+            tracing::info!(from, into, "maps merged");
+        }
         self.optimize_essential_graph(map, &before, &corrected, &moved, loop_kf);
         map.note_correction();
         LoopReport {
-            kind: LoopKind::Place,
+            kind: if merge {
+                LoopKind::Merge
+            } else {
+                LoopKind::Place
+            },
             keyframe: kf,
             loop_keyframe: loop_kf,
             matches: n_matches,

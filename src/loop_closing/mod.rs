@@ -46,6 +46,9 @@ pub enum LoopKind {
     Place,
     /// Tracking had already joined the old place (see `revisit.rs`): no pose correction.
     Revisit,
+    /// The candidate is in another map of the atlas: the keyframe's whole map is moved into
+    /// the candidate's by the Sim3 and the two become one.
+    Merge,
 }
 
 /// What a closed loop did.
@@ -130,6 +133,7 @@ impl LoopCloser {
                 kind: match r.kind {
                     LoopKind::Place => "place",
                     LoopKind::Revisit => "revisit",
+                    LoopKind::Merge => "merge",
                 },
                 timestamp: stamp(r.keyframe),
                 loop_timestamp: stamp(r.loop_keyframe),
@@ -227,6 +231,13 @@ impl LoopCloser {
             }
             current.push((group, count));
         }
+        tracing::debug!(
+            keyframe = ?kf,
+            candidates = current.len(),
+            best_consistency = current.iter().map(|g| g.1).max().unwrap_or(0),
+            accepted = accepted.len(),
+            "loop candidates"
+        );
         self.groups = current;
         (!accepted.is_empty()).then_some(accepted)
     }

@@ -10,6 +10,9 @@ use crate::matching::FeatureGrid;
 pub struct KeyFrame {
     /// Creation order (monotonic over the whole run; never reused).
     pub serial: u64,
+    /// The map of the atlas it belongs to (a new map starts when tracking is lost in
+    /// unmapped space; merged maps take the older map's id). Set by [`super::Map`].
+    pub map_id: u32,
     /// Index of the frame it was made from.
     pub frame_index: u64,
     pub timestamp: f64,
@@ -43,6 +46,7 @@ impl KeyFrame {
         let grid_rows = (height / 10).max(1);
         KeyFrame {
             serial: 0,
+            map_id: 0,
             frame_index: 0,
             timestamp: 0.0,
             t_cw: CameraFromWorld::identity(),
@@ -85,6 +89,10 @@ impl KeyFrame {
 
     /// Clears the contents, keeping every buffer's capacity.
     pub fn clear(&mut self) {
+        // A recycled slot must not keep the pose of the keyframe it held (a new map's first
+        // keyframe is the identity only if nothing sets it).
+        self.t_cw = CameraFromWorld::identity();
+        self.map_id = 0;
         self.keypoints.clear();
         self.descriptors.clear();
         self.points.clear();

@@ -5,6 +5,7 @@
 //! through pools, so a steady-state map does not allocate.
 
 mod arena;
+mod atlas;
 mod graph;
 mod keyframe;
 mod map_point;
@@ -81,6 +82,10 @@ pub struct Map {
     /// Culled keyframes: their spanning-tree parent and their pose relative to it when culled
     /// (ORB-SLAM's `Tcp`), so frames tracked against them keep following the map.
     tombstones: std::collections::HashMap<KeyFrameId, (KeyFrameId, crate::geometry::Se3)>,
+    /// The atlas: the map new keyframes join, and the id the next new map gets.
+    active_map: u32,
+    next_map_id: u32,
+    merges: u32,
 }
 
 impl Map {
@@ -112,6 +117,9 @@ impl Map {
             counts: vec![0; config.max_keyframes],
             touched: Vec::with_capacity(config.max_keyframes),
             tombstones: std::collections::HashMap::with_capacity(config.max_keyframes.min(4096)),
+            active_map: 0,
+            next_map_id: 1,
+            merges: 0,
             config,
         }
     }
@@ -216,6 +224,7 @@ impl Map {
         kf.points.resize(kf.keypoints.len(), None);
         kf.grid.assign(&kf.keypoints);
         kf.serial = self.next_serial;
+        kf.map_id = self.active_map;
         self.next_serial += 1;
         self.keyframes.insert(kf).map_err(|(_, kf)| {
             self.kf_pool.push(kf);
@@ -462,6 +471,8 @@ impl Map {
     /// Removes every keyframe and point (buffers return to the pools): a fresh map.
     pub fn reset(&mut self) {
         self.tombstones.clear();
+        self.active_map = 0;
+        self.next_map_id = 1;
         let kfs: Vec<KeyFrameId> = self.keyframes.handles().collect();
         for k in kfs {
             if let Some(mut kf) = self.keyframes.remove(k) {

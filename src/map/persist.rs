@@ -17,7 +17,7 @@ use crate::geometry::CameraFromWorld;
 /// Identifies sdslam map files.
 pub const MAGIC: &[u8; 8] = b"SDSLAMAP";
 /// Bumped whenever the payload layout changes; older files are refused with a clear message.
-pub const MAP_FORMAT_VERSION: u32 = 1;
+pub const MAP_FORMAT_VERSION: u32 = 2;
 const HEADER: usize = 8 + 4 + 8 + 4;
 
 /// What a map was built with: loading it with another camera or vocabulary is refused.
@@ -43,6 +43,8 @@ struct KeyFrameRec {
     descriptors: Vec<[u64; 4]>,
     parent: Option<u32>,
     loop_edges: Vec<u32>,
+    /// The atlas map it belongs to (format 2).
+    map_id: u32,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -125,6 +127,7 @@ impl MapSnapshot {
                     keypoints: k.keypoints.clone(),
                     descriptors: k.descriptors.clone(),
                     parent: k.parent.and_then(|p| kf_index.get(&p).copied()),
+                    map_id: k.map_id,
                     loop_edges: k
                         .loop_edges
                         .iter()
@@ -192,6 +195,14 @@ impl MapSnapshot {
             if k.parent.is_some_and(|p| p >= nk) || k.loop_edges.iter().any(|&e| e >= nk) {
                 return bad(format!(
                     "keyframe {i} links to a keyframe that does not exist"
+                ));
+            }
+            if k.parent
+                .is_some_and(|p| self.keyframes[p as usize].map_id != k.map_id)
+            {
+                return bad(format!(
+                    "keyframe {i} of map {} has its spanning-tree parent in another map",
+                    k.map_id
                 ));
             }
             if k.keypoints.iter().any(|p| {
@@ -290,6 +301,7 @@ impl MapSnapshot {
             if let Some(kf) = map.keyframe_mut(*k) {
                 kf.parent = parent;
                 kf.loop_edges = loops;
+                kf.map_id = rec.map_id;
             }
             if let Some(p) = parent {
                 if let Some(pk) = map.keyframe_mut(p) {
@@ -321,6 +333,7 @@ impl MapSnapshot {
         for k in &ids {
             map.update_connections(*k);
         }
+        map.restore_atlas(self.keyframes.iter().map(|k| k.map_id));
         Ok(ids)
     }
 

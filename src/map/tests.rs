@@ -200,3 +200,102 @@ fn a_point_moved_to_another_keypoint_leaves_no_dangling_slot() {
         assert!(m.keyframe(k).unwrap().observed().all(|(_, p)| p != a));
     }
 }
+
+/// Two maps of three keyframes each (a chain k0 - k1 - k2 sharing points), the second
+/// started with `start_new_map`.
+fn two_maps() -> (Map, [KeyFrameId; 3], [KeyFrameId; 3]) {
+    let mut m = Map::new(MapConfig {
+        max_keyframes: 8,
+        max_map_points: 400,
+        ..small()
+    });
+    let chain = |m: &mut Map| {
+        let k = [
+            add_kf(m, 100, 0.0),
+            add_kf(m, 100, 0.1),
+            add_kf(m, 100, 0.2),
+        ];
+        share(m, k[0], k[1], 0..40);
+        share(m, k[1], k[2], 40..80);
+        for &x in &k {
+            m.update_connections(x);
+        }
+        k
+    };
+    let a = chain(&mut m);
+    assert_eq!(m.start_new_map(), 1);
+    let b = chain(&mut m);
+    (m, a, b)
+}
+
+#[test]
+fn a_new_map_keeps_to_itself_and_erasing_it_leaves_the_other() {
+    let (mut m, a, b) = two_maps();
+    assert_eq!(m.map_ids(), vec![0, 1]);
+    assert!(a.iter().all(|&k| m.keyframe(k).unwrap().map_id == 0));
+    assert!(b.iter().all(|&k| m.keyframe(k).unwrap().map_id == 1));
+    assert_eq!(m.n_keyframes_of(1), 3);
+    // Each map has its own root; no covisibility crosses between them.
+    assert!(m.keyframe(b[0]).unwrap().parent.is_none());
+    assert!(m
+        .keyframe(b[0])
+        .unwrap()
+        .covisibles
+        .iter()
+        .all(|(k, _)| b.contains(k)));
+    // A culled keyframe still tells its map.
+    assert!(m.erase_keyframe(b[1]));
+    assert_eq!(m.map_of(b[1]), Some(1));
+    let points_a = m.keyframe(a[1]).unwrap().observed().count();
+    m.erase_map(1);
+    assert_eq!(m.map_ids(), vec![0]);
+    assert_eq!(m.map_of(b[1]), None, "its tombstone went with the map");
+    assert_eq!(m.keyframe(a[1]).unwrap().observed().count(), points_a);
+    assert_eq!(m.n_points(), 80, "map 0's points stay, map 1's are gone");
+}
+
+#[test]
+fn a_cancelled_new_map_gives_its_id_back() {
+    let (mut m, _, _) = two_maps();
+    assert_eq!(m.start_new_map(), 2);
+    add_kf(&mut m, 10, 1.0);
+    m.cancel_new_map(1);
+    assert_eq!(m.active_map(), 1);
+    assert_eq!(m.map_ids(), vec![0, 1]);
+    assert_eq!(m.start_new_map(), 2);
+}
+
+#[test]
+fn merging_retags_and_hangs_the_tree_under_the_anchor_with_one_root() {
+    let (mut m, a, b) = two_maps();
+    assert_eq!(m.active_map(), 1);
+    // Joint b[2] (a leaf of map 1) under anchor a[1].
+    m.merge_maps(1, 0, b[2], a[1]);
+    assert_eq!(m.map_ids(), vec![0]);
+    assert_eq!(m.active_map(), 0);
+    assert_eq!(m.maps_merged(), 1);
+    let roots: Vec<KeyFrameId> = m
+        .keyframes()
+        .filter(|(_, k)| k.parent.is_none())
+        .map(|(id, _)| id)
+        .collect();
+    assert_eq!(roots, vec![a[0]]);
+    // The old root is now below the joint: b[0] -> b[1] -> b[2] -> a[1].
+    assert_eq!(m.keyframe(b[2]).unwrap().parent, Some(a[1]));
+    assert_eq!(m.keyframe(b[1]).unwrap().parent, Some(b[2]));
+    assert_eq!(m.keyframe(b[0]).unwrap().parent, Some(b[1]));
+    assert!(m.keyframe(a[1]).unwrap().children.contains(&b[2]));
+    assert!(m.keyframe(b[2]).unwrap().children.contains(&b[1]));
+    assert!(!m.keyframe(b[1]).unwrap().children.contains(&b[2]));
+    // Every keyframe reaches the root through its parents.
+    for (id, _) in m.keyframes() {
+        let mut at = id;
+        for _ in 0..8 {
+            match m.keyframe(at).unwrap().parent {
+                Some(p) => at = p,
+                None => break,
+            }
+        }
+        assert_eq!(at, a[0]);
+    }
+}

@@ -33,6 +33,14 @@ pub struct TimingReport {
     pub semidense_inter: Percentiles,
 }
 
+/// One map of the atlas at the end of the run.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct MapRecord {
+    pub id: u32,
+    pub tracked_frames: usize,
+    pub keyframes: usize,
+}
+
 /// The run report.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Report {
@@ -45,6 +53,15 @@ pub struct Report {
     /// frame, tracked against the first map once it existed (their poses came late).
     pub backfilled_frames: usize,
     pub lost_episodes: usize,
+    /// The atlas: maps initialised over the run (the first included; a new one starts when
+    /// tracking is lost where no map relocalises it), maps merged into older ones by place
+    /// recognition, and the maps at the end. `trajectory.txt`, `keyframes.txt` and the cloud
+    /// are the primary map's (the most tracked frames); any other map's poses are in
+    /// `trajectory_map<id>.txt` and `keyframes_map<id>.txt`, in that map's own frame.
+    pub maps_made: usize,
+    pub maps_merged: usize,
+    pub primary_map: Option<u32>,
+    pub maps: Vec<MapRecord>,
     pub keyframes: usize,
     pub map_points: usize,
     pub loops_closed: usize,

@@ -29,6 +29,7 @@ use crate::tracking::{
 };
 use std::collections::HashMap;
 
+mod atlas;
 mod backfill;
 mod finish;
 mod init_solver;
@@ -38,6 +39,7 @@ mod mapping_thread;
 mod reserved;
 mod trajectory;
 
+pub use atlas::AtlasSummary;
 pub use reserved::ReservedMemory;
 
 use backfill::{Backfill, BACKFILL_PER_FRAME};
@@ -51,12 +53,17 @@ const SLOW_FRAME: std::time::Duration = std::time::Duration::from_millis(20);
 pub struct FrameResult {
     pub state: TrackingState,
     pub t_wc: Option<WorldFromCamera>,
+    /// The atlas map `t_wc` is in (see [`crate::map::Map::active_map`]): poses of different
+    /// maps are in different frames until the maps are merged.
+    pub map: Option<u32>,
     pub new_keyframe: bool,
 }
 
 struct TrajectoryEntry {
     timestamp: f64,
     reference: Option<KeyFrameId>,
+    /// The map the frame was tracked in (when the reference keyframe cannot tell any more).
+    map: u32,
     t_c_ref: Se3,
     t_cw: CameraFromWorld,
 }
@@ -73,6 +80,8 @@ pub struct SystemStats {
     pub divergences: Vec<String>,
     /// Frames before initialisation tracked afterwards against the first map.
     pub backfilled_frames: usize,
+    /// Maps initialised over the run (the first included; see `new_map_when_lost`).
+    pub maps_made: usize,
     pub orb_extraction: StageTimer,
     /// Initialisation attempts (matching, H/F, reconstruction, two-view BA), on the tracking
     /// thread: the frames before the map exists.
@@ -153,6 +162,7 @@ struct SystemLimits {
     young_map_patience_frames: usize,
     relocalisation_candidates: usize,
     final_ba_iterations: usize,
+    new_map_when_lost: bool,
 }
 
 impl System {
@@ -275,6 +285,7 @@ impl System {
                 young_map_patience_frames: config.tracking.young_map_patience_frames,
                 relocalisation_candidates: config.tracking.relocalisation_candidates,
                 final_ba_iterations: config.map.final_ba_iterations,
+                new_map_when_lost: config.tracking.new_map_when_lost,
             },
             uninitialised_frames: 0,
             stats: SystemStats {
@@ -285,6 +296,7 @@ impl System {
                 keyframes_created: 0,
                 resets: 0,
                 backfilled_frames: 0,
+                maps_made: 0,
                 orb_extraction: StageTimer::with_capacity(expected_frames.max(16)),
                 initialisation: StageTimer::with_capacity(1024),
                 initialisation_solve: StageTimer::with_capacity(1024),
@@ -344,11 +356,17 @@ impl System {
         self.semidense.mapper()
     }
 
-    /// The semi-dense cloud in world coordinates with the current keyframe poses.
+    /// The semi-dense cloud of the primary map (see [`System::atlas`]) in world coordinates
+    /// with the current keyframe poses.
     pub fn semidense_cloud(&self) -> Vec<crate::geometry::CloudPoint> {
         let mut out = Vec::new();
+        let primary = self.atlas().primary;
         if let Some(m) = self.semidense.mapper() {
-            m.cloud(&lock(&self.map), &mut out);
+            let map = lock(&self.map);
+            match primary {
+                Some(id) => m.cloud_of(&map, Some(id), &mut out),
+                None => m.cloud(&map, &mut out),
+            }
         }
         out
     }
@@ -407,9 +425,14 @@ impl System {
             self.initialize(map, gray, rgb)
         } else {
             let st = if self.tracker.state() == TrackingState::Lost {
-                self.relocalise(map)
+                self.relocalise_or_start_map(map, gray, rgb)
             } else {
-                self.tracker.track(map, &mut self.frame)
+                let st = self.tracker.track(map, &mut self.frame);
+                if st == TrackingState::Lost {
+                    // A new map, if one is needed, starts from the frames after the loss.
+                    self.forget_initialisation();
+                }
+                st
             };
             self.backfill_step(map, BACKFILL_PER_FRAME);
             let idle = match &self.mapping {
@@ -435,10 +458,11 @@ impl System {
                     );
                     tracing::warn!(%reason, "map diverging: discarded, initialising again");
                     self.stats.divergences.push(reason);
-                    self.reset(map);
+                    self.discard_active_map(map);
                 }
             }
-            let young = map.n_keyframes() <= self.limits.young_map_keyframes;
+            let active = map.n_keyframes_of(map.active_map());
+            let young = active > 0 && active <= self.limits.young_map_keyframes;
             if st == TrackingState::Lost && young && !self.localize_only {
                 // Lost right after initialisation: relocalise in the young map for a while (a
                 // short blackout, a covered lens), then start over (ORB-SLAM resets at once).
@@ -448,7 +472,7 @@ impl System {
                     tracing::warn!(
                         "lost right after initialisation: map reset, initialising again"
                     );
-                    self.reset(map);
+                    self.discard_active_map(map);
                 }
             } else if st == TrackingState::Ok {
                 self.young_map_lost_frames = 0;
@@ -471,15 +495,24 @@ impl System {
             );
         }
         let mut t_wc = None;
+        let mut map_id = None;
         if state == TrackingState::Ok {
+            map_id = Some(map.active_map());
             self.stats.tracked_frames += 1;
             let f = &self.frame;
             let reference = self.tracker.reference_kf();
-            let t_c_ref = reference
-                .and_then(|r| map.keyframe(r))
-                .map(|k| f.t_cw.0 * k.t_cw.0.inverse())
-                .unwrap_or(f.t_cw.0);
+            // A frame that became a keyframe is its own reference: the keyframe may have been
+            // moved already (inline loop closing or a map merge ran on it), the frame's pose not.
+            let t_c_ref = if new_keyframe {
+                Se3::identity()
+            } else {
+                reference
+                    .and_then(|r| map.keyframe(r))
+                    .map(|k| f.t_cw.0 * k.t_cw.0.inverse())
+                    .unwrap_or(f.t_cw.0)
+            };
             self.trajectory.push(TrajectoryEntry {
+                map: map.active_map(),
                 timestamp: f.timestamp,
                 reference,
                 t_c_ref,
@@ -496,6 +529,7 @@ impl System {
         FrameResult {
             state,
             t_wc,
+            map: map_id,
             new_keyframe,
         }
     }

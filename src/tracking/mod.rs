@@ -471,8 +471,12 @@ impl Tracker {
         // ORB-SLAM counts points seen by >= 3 keyframes once the map has more than 2; a young
         // map's points mostly have 2 observations, which starves keyframe insertion and lets the
         // baseline grow past what epipolar matching can bridge. Use 3 only once the map is
-        // established.
-        let min_obs = if map.n_keyframes() <= 5 { 2 } else { 3 };
+        // established (the reference keyframe's map: a new map of the atlas is young).
+        let min_obs = if map.n_keyframes_of(r.map_id) <= 5 {
+            2
+        } else {
+            3
+        };
         let ref_tracked = r
             .observed()
             .filter(|&(_, p)| {

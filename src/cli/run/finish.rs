@@ -50,6 +50,20 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
         .write("trajectory.txt", |p| write_tum_trajectory(p, &trajectory));
     s.outputs
         .write("keyframes.txt", |p| write_tum_trajectory(p, &keyframes));
+    // The other maps of the atlas, each in its own frame.
+    let atlas = r.system.atlas();
+    for &(id, _, _) in atlas.maps.iter().filter(|m| Some(m.0) != atlas.primary) {
+        let (t, k) = (
+            r.system.trajectory_of(id),
+            r.system.keyframe_trajectory_of(id),
+        );
+        s.outputs.write(&format!("trajectory_map{id}.txt"), |p| {
+            write_tum_trajectory(p, &t)
+        });
+        s.outputs.write(&format!("keyframes_map{id}.txt"), |p| {
+            write_tum_trajectory(p, &k)
+        });
+    }
     if let Some(path) = &s.args.save_map {
         let system = &r.system;
         s.outputs.write_at("map", path, |p| save_map(system, p));
@@ -189,6 +203,21 @@ fn fill_tracking_report(report: &mut Report, system: &System, frame_timer: &Stag
     report.final_ba_ms = system.stats.final_ba_ms;
     report.timing_ms.loop_closing = system.stats.loop_closing.percentiles();
     (report.keyframes, report.map_points) = system.map_size();
+    let atlas = system.atlas();
+    report.maps_made = system.stats.maps_made;
+    report.maps_merged = system.map().maps_merged() as usize;
+    report.primary_map = atlas.primary;
+    report.maps = atlas
+        .maps
+        .iter()
+        .map(
+            |&(id, tracked_frames, keyframes)| sdslam::runtime::MapRecord {
+                id,
+                tracked_frames,
+                keyframes,
+            },
+        )
+        .collect();
 }
 
 /// The semi-dense mapper's counts and timings.

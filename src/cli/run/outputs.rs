@@ -18,6 +18,15 @@ pub const RUN_OUTPUTS: [&str; 8] = [
     "timing.png",
 ];
 
+/// `trajectory_map<id>.txt` or `keyframes_map<id>.txt`: poses of a map other than the primary.
+fn is_map_output(name: &str) -> bool {
+    ["trajectory_map", "keyframes_map"].iter().any(|prefix| {
+        name.strip_prefix(prefix)
+            .and_then(|r| r.strip_suffix(".txt"))
+            .is_some_and(|id| !id.is_empty() && id.bytes().all(|b| b.is_ascii_digit()))
+    })
+}
+
 /// The output folder and the writes that failed so far.
 pub struct Outputs {
     dir: PathBuf,
@@ -67,6 +76,16 @@ impl Outputs {
         }
         for name in RUN_OUTPUTS {
             remove_if_present(&dir.join(name))?;
+        }
+        // Other atlas maps' poses of an earlier run (`trajectory_map<id>.txt`, `keyframes_map<id>.txt`).
+        if let Ok(entries) = std::fs::read_dir(dir) {
+            for e in entries.flatten() {
+                let name = e.file_name();
+                let name = name.to_string_lossy();
+                if is_map_output(&name) {
+                    remove_if_present(&e.path())?;
+                }
+            }
         }
         if let Ok(entries) = std::fs::read_dir(&depth) {
             for e in entries.flatten() {

@@ -130,6 +130,7 @@ impl System {
             if n >= self.tracker.config.min_inliers {
                 bf.guess = Some(tf.t_cw.0);
                 self.trajectory.push(TrajectoryEntry {
+                    map: map.active_map(),
                     timestamp: tf.timestamp,
                     reference: Some(kf0),
                     t_c_ref: tf.t_cw.0 * p0.inverse(),

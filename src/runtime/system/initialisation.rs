@@ -133,6 +133,7 @@ impl System {
         }
         let f = &self.frame;
         self.trajectory.push(TrajectoryEntry {
+            map: map.active_map(),
             timestamp: f.timestamp,
             reference: self.tracker.reference_kf(),
             t_c_ref: Se3::identity(),
@@ -189,14 +190,30 @@ impl System {
             rotation_deg = motion.t_21.rotation.angle().to_degrees(),
             "two-view motion"
         );
+        // With maps already in the atlas (tracking was lost), this one starts beside them.
+        let previous_map = map.active_map();
+        let beside = map.n_keyframes() > 0;
+        if beside {
+            map.start_new_map();
+        }
+        let new_map = map.active_map();
+        let discard = |map: &mut Map| {
+            if beside {
+                map.cancel_new_map(previous_map);
+            } else {
+                map.reset();
+            }
+        };
         let init = &self.init;
         let Ok(kf0) = map.insert_keyframe(|kf| {
             kf.keypoints.extend_from_slice(&reference.keypoints);
             kf.descriptors.extend_from_slice(&reference.descriptors);
             kf.frame_index = init.reference_index;
             kf.timestamp = init.reference_timestamp;
+            kf.t_cw = CameraFromWorld::identity();
             kf.set_images(&init.reference_images.gray, init.reference_images.rgb());
         }) else {
+            discard(map);
             return TrackingState::NotInitialised;
         };
         let f = &self.frame;
@@ -208,16 +225,15 @@ impl System {
             kf.t_cw = CameraFromWorld(motion.t_21);
             kf.set_images(gray, rgb);
         }) else {
-            map.reset();
+            discard(map);
             return TrackingState::NotInitialised;
         };
+        let mut new_points = Vec::with_capacity(pairs.len());
         for (m, &(i, j)) in pairs.iter().enumerate() {
             let Some(p) = motion.points[m] else { continue };
-            if map
-                .insert_two_view_point(p, (kf0, i as usize), (kf1, j as usize))
-                .is_err()
-            {
-                break;
+            match map.insert_two_view_point(p, (kf0, i as usize), (kf1, j as usize)) {
+                Ok(id) => new_points.push(id),
+                Err(_) => break,
             }
         }
         map.update_connections(kf0);
@@ -227,20 +243,19 @@ impl System {
         let build_ms = t_build.elapsed().as_secs_f64() * 1e3;
         // Scale the map to median depth 1.
         let Some(median) = median_depth(map, kf0).filter(|m| *m > 0.0) else {
-            map.reset();
+            discard(map);
             return TrackingState::NotInitialised;
         };
         let tracked = map.keyframe(kf1).map_or(0, |k| k.observed().count());
         if tracked < self.init.config.min_initial_map_points {
-            map.reset();
+            discard(map);
             return TrackingState::NotInitialised;
         }
         let inv = 1.0 / median;
         if let Some(k) = map.keyframe_mut(kf1) {
             k.t_cw.0.translation.vector *= inv;
         }
-        let pts: Vec<_> = map.points().map(|(id, _)| id).collect();
-        for p in pts {
+        for p in new_points {
             if let Some(mp) = map.point_mut(p) {
                 mp.position *= inv;
             }
@@ -256,10 +271,12 @@ impl System {
         self.collapse.start(self.frame.t_cw);
         tracing::info!(
             frame = self.frame.index,
-            points = map.n_points(),
+            map = new_map,
+            points = map.keyframe(kf1).map_or(0, |k| k.observed().count()),
             build_ms,
             "map initialised"
         );
+        self.stats.maps_made += 1;
         self.stats.keyframes_created += 2;
         let _ = self.fresh_keyframes.push(kf0);
         let _ = self.fresh_keyframes.push(kf1);
@@ -267,6 +284,7 @@ impl System {
         self.index_keyframe(map, kf1);
         // Keyframe 0's pose enters the trajectory too.
         self.trajectory.push(TrajectoryEntry {
+            map: map.active_map(),
             timestamp: self.init.reference_timestamp,
             reference: Some(kf0),
             t_c_ref: Se3::identity(),

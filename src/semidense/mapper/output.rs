@@ -55,10 +55,19 @@ impl SemiDenseMapper {
     /// The cloud in world coordinates with the keyframe poses in `map` now (stored poses for
     /// keyframes culled since). Appends to `out`.
     pub fn cloud(&self, map: &Map, out: &mut Vec<CloudPoint>) {
+        self.cloud_of(map, None, out);
+    }
+
+    /// [`cloud`](Self::cloud) of the keyframes of atlas map `map_id` only (`None`: all; a
+    /// keyframe of a discarded map belongs to none). Maps are in different frames until
+    /// merged: one cloud must not mix them.
+    pub fn cloud_of(&self, map: &Map, map_id: Option<u32>, out: &mut Vec<CloudPoint>) {
         let k = self.reconstructor.k;
         let w = self.reconstructor.width;
         let mut scratch = Vec::with_capacity(MAX_ANCHORS);
-        for e in self.entries.iter().filter(|e| e.checked) {
+        let in_map =
+            |e: &&KeyframeDepth| map_id.is_none_or(|id| map.map_of(e.keyframe) == Some(id));
+        for e in self.entries.iter().filter(|e| e.checked).filter(in_map) {
             let (t_cw, scale) = match map.keyframe(e.keyframe) {
                 Some(kf) => {
                     let now = KeyframeDepth {

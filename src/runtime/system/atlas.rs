@@ -1,0 +1,132 @@
+//! The atlas on the tracking side: lost in an established map, relocalise in every map and
+//! meanwhile initialise a new one, so frames keep getting poses (loop closing merges the maps
+//! when a place of an older one comes back); a map found wrong is discarded alone.
+
+use super::*;
+
+/// What the atlas holds at the end of a run (for `report.json`).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct AtlasSummary {
+    /// The map whose poses go to `trajectory.txt`: the one holding the most tracked frames.
+    pub primary: Option<u32>,
+    /// Every map with tracked frames or keyframes: (id, tracked frames, keyframes), by id.
+    pub maps: Vec<(u32, usize, usize)>,
+}
+
+impl System {
+    /// A lost frame: relocalise against every map; failing that, once the active map is
+    /// established (or was discarded), try to initialise a new map on this frame.
+    pub(super) fn relocalise_or_start_map(
+        &mut self,
+        map: &mut Map,
+        gray: &[u8],
+        rgb: Option<&[u8]>,
+    ) -> TrackingState {
+        let st = self.relocalise(map);
+        if st == TrackingState::Ok {
+            if let Some(m) = self.tracker.reference_kf().and_then(|r| map.map_of(r)) {
+                map.set_active_map(m);
+            }
+            self.forget_initialisation();
+            return st;
+        }
+        let active = map.n_keyframes_of(map.active_map());
+        let young = active > 0 && active <= self.limits.young_map_keyframes;
+        if !self.limits.new_map_when_lost || self.localize_only || young {
+            return TrackingState::Lost;
+        }
+        if self.initialize(map, gray, rgb) == TrackingState::Ok {
+            TrackingState::Ok
+        } else {
+            TrackingState::Lost
+        }
+    }
+
+    /// Initialisation starts from scratch (new reference, attempts in flight dropped).
+    pub(super) fn forget_initialisation(&mut self) {
+        self.init.reset();
+        if let Some(s) = self.init_solver.as_mut() {
+            s.generation += 1;
+        }
+    }
+
+    /// Discards the active map (lost while young, or diverging). With no other map this is
+    /// the full [`reset`](Self::reset); otherwise only its keyframes, points and poses go and
+    /// tracking is lost: it relocalises in the other maps or starts a new one.
+    pub(super) fn discard_active_map(&mut self, map: &mut Map) {
+        let id = map.active_map();
+        if map.map_ids().iter().all(|&m| m == id) {
+            self.reset(map);
+            return;
+        }
+        let before = self.trajectory.len();
+        self.trajectory
+            .retain(|e| e.reference.and_then(|r| map.map_of(r)).unwrap_or(e.map) != id);
+        let discarded = before - self.trajectory.len();
+        self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(discarded);
+        self.stats.poses_discarded_by_reset += discarded;
+        map.erase_map(id);
+        if let Some(&newest) = map.map_ids().last() {
+            map.set_active_map(newest);
+        }
+        self.backfill = Backfill::default();
+        self.tracker.reset(TrackingState::Lost);
+        self.forget_initialisation();
+        self.collapse.reset();
+        self.stats.resets += 1;
+    }
+
+    /// The maps of the run and which is primary.
+    pub fn atlas(&self) -> AtlasSummary {
+        let map = lock(&self.map);
+        atlas_summary(&map, &self.entry_maps_now(&map))
+    }
+
+    /// Poses (`T_wc`) of the tracked frames in map `id` (see [`System::trajectory`]).
+    pub fn trajectory_of(&self, id: u32) -> Vec<TimedPose> {
+        let map = lock(&self.map);
+        let maps = self.entry_maps_now(&map);
+        self.poses(&map, |i| maps[i] == id)
+    }
+
+    /// Final keyframe poses of map `id`, by time.
+    pub fn keyframe_trajectory_of(&self, id: u32) -> Vec<TimedPose> {
+        let map = lock(&self.map);
+        keyframe_poses(&map, Some(id))
+    }
+}
+
+/// Frames and keyframes per map; the primary map holds the most frames (then keyframes, then
+/// the lower id).
+pub(super) fn atlas_summary(map: &Map, entry_maps: &[u32]) -> AtlasSummary {
+    let mut ids = map.map_ids();
+    ids.extend_from_slice(entry_maps);
+    ids.sort_unstable();
+    ids.dedup();
+    let maps: Vec<(u32, usize, usize)> = ids
+        .iter()
+        .map(|&id| {
+            let frames = entry_maps.iter().filter(|&&m| m == id).count();
+            (id, frames, map.n_keyframes_of(id))
+        })
+        .collect();
+    let primary = maps
+        .iter()
+        .max_by(|a, b| (a.1, a.2).cmp(&(b.1, b.2)).then(b.0.cmp(&a.0)))
+        .map(|m| m.0);
+    AtlasSummary { primary, maps }
+}
+
+/// Keyframe poses by time, of one map or all.
+pub(super) fn keyframe_poses(map: &Map, id: Option<u32>) -> Vec<TimedPose> {
+    let mut v: Vec<TimedPose> = map
+        .keyframes()
+        .filter(|(_, k)| id.is_none_or(|id| k.map_id == id))
+        .map(|(_, k)| TimedPose {
+            timestamp: k.timestamp,
+            t_wc: k.t_cw.inverse(),
+        })
+        .collect();
+    v.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+    v
+}
