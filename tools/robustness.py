@@ -6,7 +6,8 @@ pose reported Ok (all frames Sim3-aligned to the ground truth, as % of path leng
 
 usage: tools/robustness.py OUT [GROUNDTRUTH]   (GROUNDTRUTH defaults to OUT/groundtruth.txt)
 """
-import json, sys
+import json
+import os, sys
 import numpy as np
 
 def read_tum(p):
@@ -43,15 +44,34 @@ def umeyama(src, dst):
 def main():
     out = sys.argv[1]
     gt = read_tum(sys.argv[2] if len(sys.argv) > 2 else f"{out}/groundtruth.txt")
-    traj = read_tum(f"{out}/trajectory.txt")
-    kfs = read_tum(f"{out}/keyframes.txt")
     rep = json.load(open(f"{out}/report.json"))
+    res = evaluate(gt, read_tum(f"{out}/trajectory.txt"), read_tum(f"{out}/keyframes.txt"), rep)
+    # The atlas: every map in its own frame (trajectory.txt is the primary map's).
+    res["maps_made"] = rep.get("maps_made")
+    res["maps_merged"] = rep.get("maps_merged")
+    res["frames_with_pose_any_map"] = rep.get("tracked_frames")
+    others = {}
+    for m in rep.get("maps", []):
+        if m["id"] == rep.get("primary_map"):
+            continue
+        t = f"{out}/trajectory_map{m['id']}.txt"
+        k = f"{out}/keyframes_map{m['id']}.txt"
+        if os.path.exists(t) and os.path.exists(k):
+            o = evaluate(gt, read_tum(t), read_tum(k), {"frames": rep["frames"]})
+            others[m["id"]] = {x: o.get(x) for x in ["first_pose_frame", "kf_ate_pct_path", "worst_ok_frame_pct_path", "ok_frames_off_by_5pct"]}
+            others[m["id"]]["frames"] = m["tracked_frames"]
+    if others:
+        res["other_maps"] = others
+    print(json.dumps(res))
+
+
+def evaluate(gt, traj, kfs, rep):
     path = np.linalg.norm(np.diff(gt[:, 1:4], axis=0), axis=1).sum()
     frames = rep["frames"]
     res = {"frames": frames, "path_m": round(path, 3)}
     if len(traj) == 0:
         res["first_pose_frame"] = None
-        print(json.dumps(res)); return
+        return res
     first = int(np.argmin(np.abs(gt[:, 0] - traj[0, 0])))
     res["first_pose_frame"] = first
     res["tracked_after_first"] = round(len(traj) / max(1, frames - first), 4)
@@ -73,6 +93,6 @@ def main():
     for k in ["map_resets", "lost_episodes", "relocalisations", "loops_closed", "keyframes"]:
         if k in rep:
             res[k] = rep[k]
-    print(json.dumps(res))
+    return res
 
 main()

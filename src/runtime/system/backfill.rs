@@ -15,8 +15,12 @@ pub(super) const BACKFILL_PER_FRAME: usize = 3;
 pub(super) struct Backfill {
     /// The two initial keyframes and how many pending frames are done (newest first).
     job: Option<(KeyFrameId, KeyFrameId, usize)>,
-    /// The pose of the last frame tracked: the guess for the next older one.
+    /// The two keyframes' timestamps.
+    stamps: (f64, f64),
+    /// The pose of the last frame tracked (the guess for the next older one) and the motion
+    /// from it to the one before it (a constant-velocity step back).
     guess: Option<Se3>,
+    step: Option<Se3>,
     frame: Option<TrackedFrame>,
     /// Map points now: (id, position, descriptor, max distance).
     points: Vec<(
@@ -31,9 +35,19 @@ pub(super) struct Backfill {
 }
 
 impl Backfill {
-    pub(super) fn start(&mut self, kf0: KeyFrameId, kf1: KeyFrameId, n_points: usize) {
+    /// Starts backfilling the frames kept between keyframes `kf0` and `kf1` (made at times
+    /// `stamps`).
+    pub(super) fn start(
+        &mut self,
+        kf0: KeyFrameId,
+        kf1: KeyFrameId,
+        stamps: (f64, f64),
+        n_points: usize,
+    ) {
         self.job = Some((kf0, kf1, 0));
+        self.stamps = stamps;
         self.guess = None;
+        self.step = None;
         self.points.reserve(2 * n_points);
         self.projected.reserve(2 * n_points);
     }
@@ -54,23 +68,37 @@ impl System {
             return;
         };
         let pending = self.init.pending();
-        let (Some(k0), Some(k1)) = (map.keyframe(kf0), map.keyframe(kf1)) else {
+        // Keyframe 1 may have been culled meanwhile (a young map on fast motion): its pose
+        // then comes through its parent.
+        let poses = (
+            map.keyframe_pose_or_tombstone(kf0),
+            map.keyframe_pose_or_tombstone(kf1),
+            map.map_of(kf0),
+        );
+        let (Some(p0), Some(p1), Some(map_id)) = poses else {
             self.backfill.job = None;
             return;
         };
-        let (ts0, ts1) = (k0.timestamp, k1.timestamp);
+        let (p0, p1) = (p0.0, p1.0);
+        let (ts0, ts1) = self.backfill.stamps;
         if ts1 <= ts0 || next >= pending.len() {
             self.backfill.job = None;
             return;
         }
-        let (p0, p1) = (k0.t_cw.0, k1.t_cw.0);
         let (sf, nl) = (map.config.scale_factor, map.config.n_levels);
         let (w, h) = (self.camera.width as usize, self.camera.height as usize);
         let bf = &mut self.backfill;
-        // Points as they are now (local mapping may have culled or added some since).
+        // Points of the keyframes' map as they are now (local mapping may have culled or added
+        // some since; other maps of the atlas are in other frames).
         bf.points.clear();
         bf.points.extend(
             map.points()
+                .filter(|(_, p)| {
+                    p.observations
+                        .first()
+                        .and_then(|&(k, _)| map.keyframe(k))
+                        .is_some_and(|k| k.map_id == map_id)
+                })
                 .map(|(id, p)| (id, p.position, p.descriptor, p.max_distance)),
         );
         let tf = bf.frame.get_or_insert_with(|| {
@@ -85,49 +113,66 @@ impl System {
             tf.index = pf.index;
             tf.timestamp = pf.timestamp;
             tf.features.copy_from(&pf.features);
-            tf.reset_matches();
-            tf.t_cw = CameraFromWorld(bf.guess.unwrap_or(p1));
-            bf.projected.clear();
-            for (k, &(_, pos, desc, max_d)) in bf.points.iter().enumerate() {
-                let pc = tf.t_cw.transform(&pos);
-                let Some(uv) = self.camera.project(&pc) else {
-                    continue;
-                };
-                if !self.camera.in_image(uv.x, uv.y, 0.0) {
-                    continue;
-                }
-                let level = ((max_d / pc.norm().max(1e-9)).ln() / sf.ln())
-                    .ceil()
-                    .clamp(0.0, (nl - 1) as f64) as u8;
-                bf.projected.push(ProjectedPoint {
-                    id: k as u32,
-                    uv: uv.cast(),
-                    level,
-                    descriptor: desc,
-                    radius_factor: 1.0,
-                });
-            }
-            bf.matches.clear();
-            bf.matches.resize(tf.features.len(), None);
-            // The motion model's search (ORB-SLAM: 15 px, ratio 0.9).
-            let search = ProjectionSearch {
-                scales: &self.tracker.scales,
-                radius: self.tracker.config.motion_search_radius,
-                ratio: 0.9,
+            // Two guesses: the last frame done, stepped back at its velocity (any speed
+            // profile, a start from rest), then the keyframes' interpolation at this time
+            // (steady fast motion, where the first frame back has no velocity yet).
+            let alpha = ((pf.timestamp - ts0) / (ts1 - ts0)).clamp(0.0, 1.0);
+            let between = p0.inverse().lerp_slerp(&p1.inverse(), alpha).inverse();
+            let chained = match (bf.guess, bf.step) {
+                (Some(g), Some(v)) => v * g,
+                (Some(g), None) => g,
+                (None, _) => p1,
             };
-            search_by_projection(
-                &bf.projected,
-                tf.features.view(),
-                &tf.grid,
-                search,
-                &mut bf.matches,
-                &mut bf.scratch,
-            );
-            for (j, m) in bf.matches.iter().enumerate() {
-                tf.points[j] = m.map(|k| bf.points[k as usize].0);
+            let mut n = 0;
+            for guess in [chained, between] {
+                tf.reset_matches();
+                tf.t_cw = CameraFromWorld(guess);
+                bf.projected.clear();
+                for (k, &(_, pos, desc, max_d)) in bf.points.iter().enumerate() {
+                    let pc = tf.t_cw.transform(&pos);
+                    let Some(uv) = self.camera.project(&pc) else {
+                        continue;
+                    };
+                    if !self.camera.in_image(uv.x, uv.y, 0.0) {
+                        continue;
+                    }
+                    let level = ((max_d / pc.norm().max(1e-9)).ln() / sf.ln())
+                        .ceil()
+                        .clamp(0.0, (nl - 1) as f64) as u8;
+                    bf.projected.push(ProjectedPoint {
+                        id: k as u32,
+                        uv: uv.cast(),
+                        level,
+                        descriptor: desc,
+                        radius_factor: 1.0,
+                    });
+                }
+                bf.matches.clear();
+                bf.matches.resize(tf.features.len(), None);
+                // The motion model's search (ORB-SLAM: 15 px, ratio 0.9).
+                let search = ProjectionSearch {
+                    scales: &self.tracker.scales,
+                    radius: self.tracker.config.motion_search_radius,
+                    ratio: 0.9,
+                };
+                search_by_projection(
+                    &bf.projected,
+                    tf.features.view(),
+                    &tf.grid,
+                    search,
+                    &mut bf.matches,
+                    &mut bf.scratch,
+                );
+                for (j, m) in bf.matches.iter().enumerate() {
+                    tf.points[j] = m.map(|k| bf.points[k as usize].0);
+                }
+                n = self.tracker.optimize_pose(map, tf);
+                if n >= self.tracker.config.min_inliers {
+                    break;
+                }
             }
-            let n = self.tracker.optimize_pose(map, tf);
             if n >= self.tracker.config.min_inliers {
+                bf.step = Some(tf.t_cw.0 * bf.guess.unwrap_or(p1).inverse());
                 bf.guess = Some(tf.t_cw.0);
                 self.trajectory.push(TrajectoryEntry {
                     map: map.active_map(),

@@ -293,7 +293,8 @@ impl System {
         // The reference frame (keyframe 0) has a pose; the frames between it and this one get
         // theirs over the next frames (`backfill_step`), keeping this frame within its deadline.
         self.stats.tracked_frames += 1;
-        self.backfill.start(kf0, kf1, map.n_points());
+        let stamps = (self.init.reference_timestamp, self.frame.timestamp);
+        self.backfill.start(kf0, kf1, stamps, map.n_points());
         TrackingState::Ok
     }
 }
