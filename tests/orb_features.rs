@@ -218,3 +218,41 @@ fn strongest_selection_repeats_better_than_opencv_on_real_euroc_images() {
     assert!(rep > 0.932, "repeatability {rep} (OpenCV 0.932)");
     assert!(ms > 0.36, "matching score {ms}");
 }
+
+/// `[orb] starved_th_fast`: a blank wall with faint blobs (contrast 5 grey levels) gives no
+/// FAST corner at ORB-SLAM's thresholds (20, then 7), and many with the third pass at 4; a
+/// textured image, where every level finds its share, is unchanged.
+#[test]
+fn the_starved_pass_finds_faint_corners_and_leaves_textured_images_alone() {
+    let (w, h) = (640, 480);
+    let mut wall = vec![120u8; w * h];
+    for (i, p) in wall.iter_mut().enumerate() {
+        let (x, y) = (i % w, i / w);
+        // A grid of 10 px squares, 5 grey levels darker, on a 40 px pitch.
+        if x % 40 < 10 && y % 40 < 10 {
+            *p = 115;
+        }
+    }
+    let starved = OrbConfig {
+        starved_th_fast: 4,
+        ..OrbConfig::default()
+    };
+    let plain = extract(&wall, w, h);
+    let faint = extract_with(&wall, w, h, &starved);
+    assert_eq!(
+        plain.len(),
+        0,
+        "{} corners at thresholds 20 and 7",
+        plain.len()
+    );
+    assert!(faint.len() >= 200, "{} faint corners", faint.len());
+    let img = synthetic_frame(0);
+    let a = extract(&img, w, h);
+    let b = extract_with(&img, w, h, &starved);
+    assert_eq!(a.keypoints.len(), b.keypoints.len());
+    assert!(a
+        .keypoints
+        .iter()
+        .zip(&b.keypoints)
+        .all(|(p, q)| (p.x, p.y, p.octave) == (q.x, q.y, q.octave)));
+}

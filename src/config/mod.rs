@@ -26,6 +26,11 @@ pub struct OrbConfig {
     /// FAST threshold, then the fallback for cells with no corner.
     pub ini_th_fast: u8,
     pub min_th_fast: u8,
+    /// A third FAST pass for weakly textured images (blank walls): when a pyramid level has
+    /// fewer corners than its share of `n_features` after the two passes above, its cells
+    /// still empty are searched again at this threshold. Only those cells of those levels:
+    /// textured images are unchanged. 0 = off (ORB-SLAM has no such pass).
+    pub starved_th_fast: u8,
     /// Quadtree nodes per wanted feature before keeping the strongest node winners. 1.0 is
     /// ORB-SLAM's distribution (most even, least repeatable); larger values favour strong,
     /// repeatable corners (see docs/DECISIONS.md for the measurements).
@@ -53,6 +58,7 @@ impl Default for OrbConfig {
             n_levels: 8,
             ini_th_fast: 20,
             min_th_fast: 7,
+            starved_th_fast: 0,
             quadtree_oversampling: 2.0,
             score_type: OrbScore::Fast,
             distribution: OrbDistribution::Quadtree,
@@ -318,6 +324,12 @@ impl Config {
         }
         if self.orb.min_th_fast > self.orb.ini_th_fast {
             return bad("orb.min_th_fast", "must not exceed orb.ini_th_fast");
+        }
+        if self.orb.starved_th_fast > self.orb.min_th_fast {
+            return bad(
+                "orb.starved_th_fast",
+                "must not exceed orb.min_th_fast (0 = off)",
+            );
         }
         let sd = &self.semidense;
         // Written as `!(in range)` so that NaN, which fails every comparison, is refused.

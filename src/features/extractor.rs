@@ -311,6 +311,7 @@ fn extract_level(s: &Shared, l: usize, blurred: &mut PaddedImage, lane: &mut Lan
     for c in &lane.corners {
         counts[(c.y as usize - y0) / CELL * cols + (c.x as usize - x0) / CELL] += 1;
     }
+    let first_pass = lane.corners.len();
     if s.config.min_th_fast < s.config.ini_th_fast {
         for cy in 0..rows {
             for cx in 0..cols {
@@ -327,6 +328,25 @@ fn extract_level(s: &Shared, l: usize, blurred: &mut PaddedImage, lane: &mut Lan
         }
     }
     let wanted = s.per_level[l];
+    let starved = s.config.starved_th_fast;
+    if starved > 0 && starved < s.config.min_th_fast && lane.corners.len() < wanted {
+        for c in &lane.corners[first_pass..] {
+            counts[(c.y as usize - y0) / CELL * cols + (c.x as usize - x0) / CELL] += 1;
+        }
+        for cy in 0..rows {
+            for cx in 0..cols {
+                if counts[cy * cols + cx] == 0 {
+                    let r = (
+                        x0 + cx * CELL,
+                        y0 + cy * CELL,
+                        (x0 + (cx + 1) * CELL).min(x1),
+                        (y0 + (cy + 1) * CELL).min(y1),
+                    );
+                    detect(level, starved, r, &mut lane.corners, score_map);
+                }
+            }
+        }
+    }
     select_corners(s, level, (x0, y0, x1, y1), wanted, lane);
     if lane.order.is_empty() {
         return;
