@@ -214,3 +214,45 @@ fn a_blackout_in_unmapped_space_starts_a_new_map_that_is_merged_back() {
         100.0 * worst
     );
 }
+
+/// The same blackout with every thread running (initialisation on `sdslam-init`, mapping and
+/// loop closing on theirs): the new map starts, frames keep getting poses, and no frame
+/// reported `Ok` is far off. (How well the merged map fits varies run to run here, so ATE is
+/// held in the deterministic test above.)
+#[test]
+fn threaded_a_blackout_in_unmapped_space_keeps_every_frame_posed() {
+    let out = tempfile::tempdir().unwrap();
+    let (ok, _, err) = sdslam(&[
+        "-q",
+        "run",
+        "synthetic",
+        "--no-semidense",
+        "--no-plots",
+        "--drop",
+        "150:45",
+        "--out",
+        out.path().to_str().unwrap(),
+    ]);
+    assert!(ok, "sdslam run failed: {err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("report.json")).unwrap())
+            .unwrap();
+    let frames = report["frames"].as_u64().unwrap() as f64;
+    let tracked = report["tracked_frames"].as_u64().unwrap() as f64;
+    assert!(report["maps_made"].as_u64().unwrap() >= 2, "{}", report["maps"]);
+    assert!(tracked / frames >= 0.97, "{tracked} of {frames} frames posed");
+    let gt = read_tum_trajectory(&out.path().join("groundtruth.txt")).unwrap();
+    let traj = read_tum_trajectory(&out.path().join("trajectory.txt")).unwrap();
+    let path: f64 = gt
+        .windows(2)
+        .map(|w| (w[1].t_wc.position() - w[0].t_wc.position()).norm())
+        .sum();
+    let worst = ate(&gt, &traj, 0.02, true).expect("frame ATE").max_m / path;
+    eprintln!(
+        "threaded blackout: maps {} made / {} merged, {tracked} of {frames} posed, worst Ok {:.2}%",
+        report["maps_made"],
+        report["maps_merged"],
+        100.0 * worst
+    );
+    assert!(worst <= 0.05, "a frame reported Ok is off by {:.1}%", 100.0 * worst);
+}
