@@ -157,29 +157,57 @@ fn an_exposure_step_is_tracked_through() {
     });
 }
 
+/// What a run with a blackout gave: report.json, ground truth, trajectory, keyframes and the
+/// path length.
+struct BlackoutRun {
+    report: serde_json::Value,
+    gt: Vec<sdslam::eval::TimedPose>,
+    traj: Vec<sdslam::eval::TimedPose>,
+    kfs: Vec<sdslam::eval::TimedPose>,
+    path: f64,
+}
+
+/// The built-in orbit with frames 150..195 withheld (`--drop 150:45`).
+fn run_blackout(deterministic: bool) -> BlackoutRun {
+    let out = tempfile::tempdir().unwrap();
+    let mut args = vec!["-q", "run", "synthetic", "--no-semidense", "--no-plots"];
+    if deterministic {
+        args.push("--deterministic");
+    }
+    args.extend(["--drop", "150:45", "--out", out.path().to_str().unwrap()]);
+    let (ok, _, err) = sdslam(&args);
+    assert!(ok, "sdslam run failed: {err}");
+    let read = |name: &str| read_tum_trajectory(&out.path().join(name)).unwrap();
+    let gt = read("groundtruth.txt");
+    let path = gt
+        .windows(2)
+        .map(|w| (w[1].t_wc.position() - w[0].t_wc.position()).norm())
+        .sum();
+    BlackoutRun {
+        report: serde_json::from_str(
+            &std::fs::read_to_string(out.path().join("report.json")).unwrap(),
+        )
+        .unwrap(),
+        traj: read("trajectory.txt"),
+        kfs: read("keyframes.txt"),
+        gt,
+        path,
+    }
+}
+
 /// A 45-frame blackout (a covered lens, a dropped link) during which the camera moves on to a
 /// part of the orbit no map has seen: relocalisation cannot succeed there, so a new map of
 /// the atlas starts at once, and place recognition merges it into the first map when the
 /// orbit comes back. Every frame after the blackout gets a pose, all in one frame at the end.
 #[test]
 fn a_blackout_in_unmapped_space_starts_a_new_map_that_is_merged_back() {
-    let out = tempfile::tempdir().unwrap();
-    let (ok, _, err) = sdslam(&[
-        "-q",
-        "run",
-        "synthetic",
-        "--deterministic",
-        "--no-semidense",
-        "--no-plots",
-        "--drop",
-        "150:45",
-        "--out",
-        out.path().to_str().unwrap(),
-    ]);
-    assert!(ok, "sdslam run failed: {err}");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.path().join("report.json")).unwrap())
-            .unwrap();
+    let BlackoutRun {
+        report,
+        gt,
+        traj,
+        kfs,
+        path,
+    } = run_blackout(true);
     let frames = report["frames"].as_u64().unwrap() as f64;
     assert_eq!(report["maps_made"], 2, "{}", report["maps"]);
     assert_eq!(report["maps_merged"], 1, "{}", report["maps"]);
@@ -189,13 +217,6 @@ fn a_blackout_in_unmapped_space_starts_a_new_map_that_is_merged_back() {
         "one map at the end: {}",
         report["maps"]
     );
-    let gt = read_tum_trajectory(&out.path().join("groundtruth.txt")).unwrap();
-    let traj = read_tum_trajectory(&out.path().join("trajectory.txt")).unwrap();
-    let kfs = read_tum_trajectory(&out.path().join("keyframes.txt")).unwrap();
-    let path: f64 = gt
-        .windows(2)
-        .map(|w| (w[1].t_wc.position() - w[0].t_wc.position()).norm())
-        .sum();
     let tracked = traj.len() as f64 / frames;
     let kf = ate(&gt, &kfs, 0.02, true).expect("keyframe ATE");
     let worst = ate(&gt, &traj, 0.02, true).expect("frame ATE").max_m / path;
@@ -221,32 +242,24 @@ fn a_blackout_in_unmapped_space_starts_a_new_map_that_is_merged_back() {
 /// held in the deterministic test above.)
 #[test]
 fn threaded_a_blackout_in_unmapped_space_keeps_every_frame_posed() {
-    let out = tempfile::tempdir().unwrap();
-    let (ok, _, err) = sdslam(&[
-        "-q",
-        "run",
-        "synthetic",
-        "--no-semidense",
-        "--no-plots",
-        "--drop",
-        "150:45",
-        "--out",
-        out.path().to_str().unwrap(),
-    ]);
-    assert!(ok, "sdslam run failed: {err}");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.path().join("report.json")).unwrap())
-            .unwrap();
+    let BlackoutRun {
+        report,
+        gt,
+        traj,
+        path,
+        ..
+    } = run_blackout(false);
     let frames = report["frames"].as_u64().unwrap() as f64;
     let tracked = report["tracked_frames"].as_u64().unwrap() as f64;
-    assert!(report["maps_made"].as_u64().unwrap() >= 2, "{}", report["maps"]);
-    assert!(tracked / frames >= 0.97, "{tracked} of {frames} frames posed");
-    let gt = read_tum_trajectory(&out.path().join("groundtruth.txt")).unwrap();
-    let traj = read_tum_trajectory(&out.path().join("trajectory.txt")).unwrap();
-    let path: f64 = gt
-        .windows(2)
-        .map(|w| (w[1].t_wc.position() - w[0].t_wc.position()).norm())
-        .sum();
+    assert!(
+        report["maps_made"].as_u64().unwrap() >= 2,
+        "{}",
+        report["maps"]
+    );
+    assert!(
+        tracked / frames >= 0.97,
+        "{tracked} of {frames} frames posed"
+    );
     let worst = ate(&gt, &traj, 0.02, true).expect("frame ATE").max_m / path;
     eprintln!(
         "threaded blackout: maps {} made / {} merged, {tracked} of {frames} posed, worst Ok {:.2}%",
@@ -254,5 +267,9 @@ fn threaded_a_blackout_in_unmapped_space_keeps_every_frame_posed() {
         report["maps_merged"],
         100.0 * worst
     );
-    assert!(worst <= 0.05, "a frame reported Ok is off by {:.1}%", 100.0 * worst);
+    assert!(
+        worst <= 0.05,
+        "a frame reported Ok is off by {:.1}%",
+        100.0 * worst
+    );
 }

@@ -285,6 +285,49 @@ fn describe_any(b: &PaddedImage, p: &PatternPoints, x: isize, y: isize, a: f32) 
     describe(b, p, x, y, a)
 }
 
+/// The detection cells of one level (`CELL` px squares over the bordered region).
+struct CellGrid {
+    origin: (usize, usize),
+    end: (usize, usize),
+    cols: usize,
+    rows: usize,
+}
+
+impl CellGrid {
+    /// Adds `corners` to the per-cell counts.
+    fn count(&self, corners: &[Corner], counts: &mut [u32]) {
+        let (x0, y0) = self.origin;
+        for c in corners {
+            counts[(c.y as usize - y0) / CELL * self.cols + (c.x as usize - x0) / CELL] += 1;
+        }
+    }
+
+    /// Runs FAST at `threshold` in every cell with no corner yet.
+    fn fill_empty(
+        &self,
+        level: &PaddedImage,
+        threshold: u8,
+        counts: &[u32],
+        corners: &mut Vec<Corner>,
+        score_map: &mut [u8],
+    ) {
+        let ((x0, y0), (x1, y1)) = (self.origin, self.end);
+        for cy in 0..self.rows {
+            for cx in 0..self.cols {
+                if counts[cy * self.cols + cx] == 0 {
+                    let r = (
+                        x0 + cx * CELL,
+                        y0 + cy * CELL,
+                        (x0 + (cx + 1) * CELL).min(x1),
+                        (y0 + (cy + 1) * CELL).min(y1),
+                    );
+                    detect(level, threshold, r, corners, score_map);
+                }
+            }
+        }
+    }
+}
+
 #[inline(always)]
 fn extract_level(s: &Shared, l: usize, blurred: &mut PaddedImage, lane: &mut Lane) {
     let level = &s.levels[l];
@@ -306,46 +349,30 @@ fn extract_level(s: &Shared, l: usize, blurred: &mut PaddedImage, lane: &mut Lan
         score_map,
     );
     let (cols, rows) = ((x1 - x0).div_ceil(CELL), (y1 - y0).div_ceil(CELL));
+    let grid = CellGrid {
+        origin: (x0, y0),
+        end: (x1, y1),
+        cols,
+        rows,
+    };
     let counts = &mut lane.cell_counts[..cols * rows];
     counts.fill(0);
-    for c in &lane.corners {
-        counts[(c.y as usize - y0) / CELL * cols + (c.x as usize - x0) / CELL] += 1;
-    }
+    grid.count(&lane.corners, counts);
     let first_pass = lane.corners.len();
     if s.config.min_th_fast < s.config.ini_th_fast {
-        for cy in 0..rows {
-            for cx in 0..cols {
-                if counts[cy * cols + cx] == 0 {
-                    let r = (
-                        x0 + cx * CELL,
-                        y0 + cy * CELL,
-                        (x0 + (cx + 1) * CELL).min(x1),
-                        (y0 + (cy + 1) * CELL).min(y1),
-                    );
-                    detect(level, s.config.min_th_fast, r, &mut lane.corners, score_map);
-                }
-            }
-        }
+        grid.fill_empty(
+            level,
+            s.config.min_th_fast,
+            counts,
+            &mut lane.corners,
+            score_map,
+        );
     }
     let wanted = s.per_level[l];
     let starved = s.config.starved_th_fast;
     if starved > 0 && starved < s.config.min_th_fast && lane.corners.len() < wanted {
-        for c in &lane.corners[first_pass..] {
-            counts[(c.y as usize - y0) / CELL * cols + (c.x as usize - x0) / CELL] += 1;
-        }
-        for cy in 0..rows {
-            for cx in 0..cols {
-                if counts[cy * cols + cx] == 0 {
-                    let r = (
-                        x0 + cx * CELL,
-                        y0 + cy * CELL,
-                        (x0 + (cx + 1) * CELL).min(x1),
-                        (y0 + (cy + 1) * CELL).min(y1),
-                    );
-                    detect(level, starved, r, &mut lane.corners, score_map);
-                }
-            }
-        }
+        grid.count(&lane.corners[first_pass..], counts);
+        grid.fill_empty(level, starved, counts, &mut lane.corners, score_map);
     }
     select_corners(s, level, (x0, y0, x1, y1), wanted, lane);
     if lane.order.is_empty() {
