@@ -81,7 +81,7 @@ impl LoopCloser {
         let fused = fuse_and_link(map, kf, loop_kf, matched);
         if let (true, Some(from), Some(into)) = (merge, from, into) {
             map.merge_maps(from, into, kf, loop_kf);
-            tracing::info!(from, into, "maps merged");
+            tracing::info!(from, into, scale = 1.0 / s_cw.scale, "maps merged");
         }
         self.optimize_essential_graph(map, &before, &corrected, &moved, loop_kf);
         map.note_correction();
