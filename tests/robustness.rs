@@ -250,7 +250,7 @@ fn threaded_a_blackout_in_unmapped_space_keeps_every_frame_posed() {
         ..
     } = run_blackout(false);
     let frames = report["frames"].as_u64().unwrap() as f64;
-    let tracked = report["tracked_frames"].as_u64().unwrap() as f64;
+    let tracked = report["tracked_frames_all_maps"].as_u64().unwrap() as f64;
     assert!(
         report["maps_made"].as_u64().unwrap() >= 2,
         "{}",

@@ -49,7 +49,7 @@ def main():
     # The atlas: every map in its own frame (trajectory.txt is the primary map's).
     res["maps_made"] = rep.get("maps_made")
     res["maps_merged"] = rep.get("maps_merged")
-    res["frames_with_pose_any_map"] = rep.get("tracked_frames")
+    res["frames_with_pose_any_map"] = rep.get("tracked_frames_all_maps", rep.get("tracked_frames"))
     others = {}
     for m in rep.get("maps", []):
         if m["id"] == rep.get("primary_map"):

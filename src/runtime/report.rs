@@ -59,6 +59,9 @@ pub struct Report {
     /// are the primary map's (the most tracked frames); any other map's poses are in
     /// `trajectory_map<id>.txt` and `keyframes_map<id>.txt`, in that map's own frame.
     pub maps_made: usize,
+    /// Frames with a pose in any map (`tracked_frames` and `keyframes` count the primary
+    /// map's, as in `trajectory.txt` and `keyframes.txt`).
+    pub tracked_frames_all_maps: usize,
     pub maps_merged: usize,
     pub primary_map: Option<u32>,
     pub maps: Vec<MapRecord>,

@@ -204,6 +204,12 @@ fn fill_tracking_report(report: &mut Report, system: &System, frame_timer: &Stag
     report.timing_ms.loop_closing = system.stats.loop_closing.percentiles();
     (report.keyframes, report.map_points) = system.map_size();
     let atlas = system.atlas();
+    // The counts of trajectory.txt and keyframes.txt (the primary map); every map's in `maps`.
+    report.tracked_frames_all_maps = report.tracked_frames;
+    if let Some(&(_, frames, keyframes)) = atlas.maps.iter().find(|m| Some(m.0) == atlas.primary) {
+        report.tracked_frames = frames;
+        report.keyframes = keyframes;
+    }
     report.maps_made = system.stats.maps_made;
     report.maps_merged = system.map().maps_merged() as usize;
     report.primary_map = atlas.primary;
@@ -294,10 +300,19 @@ fn note_summary(s: &Session, r: &Running) {
         );
     }
     note!(
-        "sdslam: {} frames ({} skipped), {} tracked, {} keyframes, {} points{}, {:.1} s; state {:?}; outputs in {}",
+        "sdslam: {} frames ({} skipped), {} tracked{}, {} keyframes, {} points{}, {:.1} s; state {:?}; outputs in {}",
         report.frames,
         report.skipped_frames,
         report.tracked_frames,
+        if report.maps.len() > 1 {
+            format!(
+                " in the primary map ({} in {} maps)",
+                report.tracked_frames_all_maps,
+                report.maps.len()
+            )
+        } else {
+            String::new()
+        },
         report.keyframes,
         report.map_points,
         report.keyframe_ate_rmse_m.map(|a| format!(", keyframe ATE {:.4} (Sim3-aligned)", a)).unwrap_or_default(),
