@@ -62,8 +62,6 @@ pub struct FrameResult {
 struct TrajectoryEntry {
     timestamp: f64,
     reference: Option<KeyFrameId>,
-    /// The map the frame was tracked in (when the reference keyframe cannot tell any more).
-    map: u32,
     t_c_ref: Se3,
     t_cw: CameraFromWorld,
 }
@@ -362,11 +360,7 @@ impl System {
         let mut out = Vec::new();
         let primary = self.atlas().primary;
         if let Some(m) = self.semidense.mapper() {
-            let map = lock(&self.map);
-            match primary {
-                Some(id) => m.cloud_of(&map, Some(id), &mut out),
-                None => m.cloud(&map, &mut out),
-            }
+            m.cloud_of(&lock(&self.map), primary, &mut out);
         }
         out
     }
@@ -461,9 +455,7 @@ impl System {
                     self.discard_active_map(map);
                 }
             }
-            let active = map.n_keyframes_of(map.active_map());
-            let young = active > 0 && active <= self.limits.young_map_keyframes;
-            if st == TrackingState::Lost && young && !self.localize_only {
+            if st == TrackingState::Lost && self.active_map_is_young(map) && !self.localize_only {
                 // Lost right after initialisation: relocalise in the young map for a while (a
                 // short blackout, a covered lens), then start over (ORB-SLAM resets at once).
                 self.young_map_lost_frames += 1;
@@ -512,7 +504,6 @@ impl System {
                     .unwrap_or(f.t_cw.0)
             };
             self.trajectory.push(TrajectoryEntry {
-                map: map.active_map(),
                 timestamp: f.timestamp,
                 reference,
                 t_c_ref,

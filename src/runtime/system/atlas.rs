@@ -30,9 +30,7 @@ impl System {
             self.forget_initialisation();
             return st;
         }
-        let active = map.n_keyframes_of(map.active_map());
-        let young = active > 0 && active <= self.limits.young_map_keyframes;
-        if !self.limits.new_map_when_lost || self.localize_only || young {
+        if !self.limits.new_map_when_lost || self.localize_only || self.active_map_is_young(map) {
             return TrackingState::Lost;
         }
         if self.initialize(map, gray, rgb) == TrackingState::Ok {
@@ -40,6 +38,12 @@ impl System {
         } else {
             TrackingState::Lost
         }
+    }
+
+    /// The active map has keyframes, but no more than `[tracking] young_map_keyframes`.
+    pub(super) fn active_map_is_young(&self, map: &Map) -> bool {
+        let n = map.n_keyframes_of(map.active_map());
+        n > 0 && n <= self.limits.young_map_keyframes
     }
 
     /// Initialisation starts from scratch (new reference, attempts in flight dropped).
@@ -61,7 +65,7 @@ impl System {
         }
         let before = self.trajectory.len();
         self.trajectory
-            .retain(|e| e.reference.and_then(|r| map.map_of(r)).unwrap_or(e.map) != id);
+            .retain(|e| e.reference.and_then(|r| map.map_of(r)) != Some(id));
         let discarded = before - self.trajectory.len();
         self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(discarded);
         self.stats.poses_discarded_by_reset += discarded;
@@ -86,7 +90,7 @@ impl System {
     pub fn trajectory_of(&self, id: u32) -> Vec<TimedPose> {
         let map = lock(&self.map);
         let maps = self.entry_maps_now(&map);
-        self.poses(&map, |i| maps[i] == id)
+        self.poses(&map, |i| maps[i] == Some(id))
     }
 
     /// Final keyframe poses of map `id`, by time.
@@ -98,15 +102,15 @@ impl System {
 
 /// Frames and keyframes per map; the primary map holds the most frames (then keyframes, then
 /// the lower id).
-pub(super) fn atlas_summary(map: &Map, entry_maps: &[u32]) -> AtlasSummary {
+pub(super) fn atlas_summary(map: &Map, entry_maps: &[Option<u32>]) -> AtlasSummary {
     let mut ids = map.map_ids();
-    ids.extend_from_slice(entry_maps);
+    ids.extend(entry_maps.iter().flatten());
     ids.sort_unstable();
     ids.dedup();
     let maps: Vec<(u32, usize, usize)> = ids
         .iter()
         .map(|&id| {
-            let frames = entry_maps.iter().filter(|&&m| m == id).count();
+            let frames = entry_maps.iter().filter(|&&m| m == Some(id)).count();
             (id, frames, map.n_keyframes_of(id))
         })
         .collect();

@@ -175,7 +175,6 @@ impl System {
                 bf.step = Some(tf.t_cw.0 * bf.guess.unwrap_or(p1).inverse());
                 bf.guess = Some(tf.t_cw.0);
                 self.trajectory.push(TrajectoryEntry {
-                    map: map.active_map(),
                     timestamp: tf.timestamp,
                     reference: Some(kf0),
                     t_c_ref: tf.t_cw.0 * p0.inverse(),

@@ -133,7 +133,6 @@ impl System {
         }
         let f = &self.frame;
         self.trajectory.push(TrajectoryEntry {
-            map: map.active_map(),
             timestamp: f.timestamp,
             reference: self.tracker.reference_kf(),
             t_c_ref: Se3::identity(),
@@ -284,7 +283,6 @@ impl System {
         self.index_keyframe(map, kf1);
         // Keyframe 0's pose enters the trajectory too.
         self.trajectory.push(TrajectoryEntry {
-            map: map.active_map(),
             timestamp: self.init.reference_timestamp,
             reference: Some(kf0),
             t_c_ref: Se3::identity(),

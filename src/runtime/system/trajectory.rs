@@ -13,22 +13,22 @@ impl System {
         let map = lock(&self.map);
         let maps = self.entry_maps_now(&map);
         let primary = atlas_summary(&map, &maps).primary;
-        self.poses(&map, |i| Some(maps[i]) == primary)
+        self.poses(&map, |i| maps[i].is_some() && maps[i] == primary)
     }
 
     /// Final keyframe poses of the primary map, by time.
     pub fn keyframe_trajectory(&self) -> Vec<TimedPose> {
         let map = lock(&self.map);
-        let maps = self.entry_maps_now(&map);
-        let primary = atlas_summary(&map, &maps).primary;
+        let primary = atlas_summary(&map, &self.entry_maps_now(&map)).primary;
         keyframe_poses(&map, primary)
     }
 
-    /// The map each trajectory entry is in now (merges move entries with their keyframes).
-    pub(super) fn entry_maps_now(&self, map: &Map) -> Vec<u32> {
+    /// The map each trajectory entry is in now, through its reference keyframe (merges move
+    /// entries with their keyframes; a culled reference is followed through its parents).
+    pub(super) fn entry_maps_now(&self, map: &Map) -> Vec<Option<u32>> {
         self.trajectory
             .iter()
-            .map(|e| e.reference.and_then(|r| map.map_of(r)).unwrap_or(e.map))
+            .map(|e| e.reference.and_then(|r| map.map_of(r)))
             .collect()
     }
 
