@@ -95,4 +95,5 @@ def evaluate(gt, traj, kfs, rep):
             res[k] = rep[k]
     return res
 
-main()
+if __name__ == "__main__":
+    main()

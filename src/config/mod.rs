@@ -29,7 +29,9 @@ pub struct OrbConfig {
     /// A third FAST pass for weakly textured images (blank walls): when a pyramid level has
     /// fewer corners than its share of `n_features` after the two passes above, its cells
     /// still empty are searched again at this threshold. Only those cells of those levels:
-    /// textured images are unchanged. 0 = off (ORB-SLAM has no such pass).
+    /// textured images are unchanged. 0 = off (ORB-SLAM has no such pass). 5 by default: on
+    /// the weak walls of the outward loop it keeps one map over every frame (4 let the scale
+    /// collapse, 6 finds too few corners; docs/PERFORMANCE.md).
     pub starved_th_fast: u8,
     /// Quadtree nodes per wanted feature before keeping the strongest node winners. 1.0 is
     /// ORB-SLAM's distribution (most even, least repeatable); larger values favour strong,
@@ -58,7 +60,7 @@ impl Default for OrbConfig {
             n_levels: 8,
             ini_th_fast: 20,
             min_th_fast: 7,
-            starved_th_fast: 0,
+            starved_th_fast: 5,
             quadtree_oversampling: 2.0,
             score_type: OrbScore::Fast,
             distribution: OrbDistribution::Quadtree,
