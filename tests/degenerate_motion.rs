@@ -9,7 +9,7 @@ use sdslam::config::Config;
 use sdslam::geometry::WorldFromCamera;
 use sdslam::runtime::{FrameResult, System};
 use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
-use sdslam::tracking::TrackingState;
+use sdslam::tracking::{DegradedReason, TrackingState};
 
 struct Rig {
     seq: SyntheticSequence,
@@ -192,4 +192,51 @@ fn very_fast_motion_never_gives_nan_and_recovers() {
         "not tracking 10 frames after the fast motion: {back:?}"
     );
     rig.check_map();
+}
+
+/// A pose the quality checks doubt (`tracking::quality`) is reported `Degraded`, with a pose,
+/// its map and the reason, and is neither mapped nor written to the trajectory. With the
+/// ambiguity bar set below what any pose reaches, every frame tracked after the initialising
+/// one is such a frame (until, with no keyframe made, the map runs out of view), and the
+/// frames before it are not backfilled.
+#[test]
+fn poses_failing_the_quality_checks_are_degraded_not_ok() {
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
+    let mut config = Config::default();
+    config.semidense.enabled = false;
+    config.tracking.max_centre_sigma_ratio = 1e-7;
+    let mut system = System::new(&seq.config.calibration(), &config, 100, false);
+    let mut frame = Frame::new(seq.config.width, seq.config.height);
+    let (mut ok, mut degraded) = (0, 0);
+    for i in 0..60 {
+        seq.render_frame(i, &mut frame);
+        let t = seq.config.timestamp(i);
+        let r = system.process(&frame.gray, Some(&frame.rgb), t, i as u64);
+        match r.state {
+            TrackingState::Ok => ok += 1,
+            TrackingState::Degraded => {
+                degraded += 1;
+                assert_eq!(r.degraded, Some(DegradedReason::Ambiguous));
+                assert!(r.t_wc.is_some() && r.map.is_some() && !r.new_keyframe);
+                let q = r.quality.expect("a degraded frame has its quality");
+                assert!(q.centre_sigma_ratio() > 1e-7 && q.inliers >= 30, "{q:?}");
+            }
+            _ => assert!(r.t_wc.is_none()),
+        }
+    }
+    assert_eq!(ok, 1, "only the initialising frame is Ok");
+    assert!(degraded >= 30, "{degraded} frames Degraded");
+    assert_eq!(
+        system.trajectory().len(),
+        2,
+        "only the initialisation's two views have trajectory poses"
+    );
+    assert!(
+        system.stats.degraded_frames[DegradedReason::Ambiguous as usize] >= degraded,
+        "backfilled frames are judged too"
+    );
+    assert_eq!(
+        system.stats.keyframes_created, 2,
+        "no keyframe beyond the initial two"
+    );
 }

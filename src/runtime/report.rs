@@ -102,6 +102,15 @@ pub struct Report {
     /// Maps found diverging (a scale collapse: keyframes that neither move nor turn while the
     /// view changes) and discarded, each with its frame and reason. Their frames are not `Ok`.
     pub divergences: Vec<String>,
+    /// Frames tracked against the map whose pose failed a check of `tracking::quality`: reported
+    /// `Degraded` (not to be driven on) and left out of `trajectory.txt`; by reason
+    /// (`ambiguous`: the points leave the camera centre poorly fixed; `poor_fit`: reprojection
+    /// errors far above keypoint noise; `jump`: far from the motion model's prediction).
+    pub degraded_frames: usize,
+    pub degraded_reasons: std::collections::BTreeMap<String, usize>,
+    /// The camera centre's 1-sigma uncertainty of the `Ok` frames (one pixel of keypoint
+    /// noise), in percent of the scene depth: how well the poses were determined.
+    pub centre_sigma_pct_of_depth: super::Percentiles,
     /// Why the run ended early, if it did (error or interruption); outputs are still written.
     pub stopped_early: Option<String>,
     /// Keyframes reconstructed by semi-dense mapping, and those it skipped (culled before

@@ -57,6 +57,11 @@ pub struct FrameResult {
     /// maps are in different frames until the maps are merged.
     pub map: Option<u32>,
     pub new_keyframe: bool,
+    /// How well the pose is determined (`Ok` and `Degraded` frames): the camera centre's
+    /// 1-sigma uncertainty in map units, the scene depth, the reprojection fit.
+    pub quality: Option<crate::tracking::PoseQuality>,
+    /// Why the pose is `Degraded`.
+    pub degraded: Option<crate::tracking::DegradedReason>,
 }
 
 struct TrajectoryEntry {
@@ -78,6 +83,12 @@ pub struct SystemStats {
     pub divergences: Vec<String>,
     /// Frames before initialisation tracked afterwards against the first map.
     pub backfilled_frames: usize,
+    /// Frames tracked with a pose that failed a check of `tracking::quality` (reported
+    /// `Degraded`, not in the trajectory), by reason (in `DegradedReason::ALL` order).
+    pub degraded_frames: [usize; 3],
+    /// The camera centre's 1-sigma uncertainty of `Ok` frames, in percent of the scene depth
+    /// (a `StageTimer` for its bounded storage and percentiles; the values are not times).
+    pub centre_sigma_pct: StageTimer,
     /// Maps initialised over the run (the first included; see `new_map_when_lost`).
     pub maps_made: usize,
     pub orb_extraction: StageTimer,
@@ -294,6 +305,8 @@ impl System {
                 keyframes_created: 0,
                 resets: 0,
                 backfilled_frames: 0,
+                degraded_frames: [0; 3],
+                centre_sigma_pct: StageTimer::with_capacity(expected_frames.max(16)),
                 maps_made: 0,
                 orb_extraction: StageTimer::with_capacity(expected_frames.max(16)),
                 initialisation: StageTimer::with_capacity(1024),
@@ -466,7 +479,7 @@ impl System {
                     );
                     self.discard_active_map(map);
                 }
-            } else if st == TrackingState::Ok {
+            } else if st != TrackingState::Lost {
                 self.young_map_lost_frames = 0;
             }
             self.tracker.state()
@@ -488,6 +501,22 @@ impl System {
         }
         let mut t_wc = None;
         let mut map_id = None;
+        let (quality, degraded) = match state {
+            TrackingState::Ok | TrackingState::Degraded => {
+                (self.tracker.quality(), self.tracker.degraded())
+            }
+            _ => (None, None),
+        };
+        if let Some(q) = quality.filter(|_| state == TrackingState::Ok) {
+            self.stats
+                .centre_sigma_pct
+                .record_ms(100.0 * q.centre_sigma_ratio());
+        }
+        if let Some(r) = degraded {
+            self.stats.degraded_frames[r as usize] += 1;
+            map_id = Some(map.active_map());
+            t_wc = Some(self.frame.t_cw.inverse());
+        }
         if state == TrackingState::Ok {
             map_id = Some(map.active_map());
             self.stats.tracked_frames += 1;
@@ -522,6 +551,8 @@ impl System {
             t_wc,
             map: map_id,
             new_keyframe,
+            quality,
+            degraded,
         }
     }
 

@@ -1,13 +1,14 @@
 //! Tracking (ORB-SLAM, section "Tracking"): constant-velocity prediction with search by
 //! projection of the last frame's points (window widened once), reference-keyframe fallback,
 //! motion-only BA, local-map tracking (frustum, scale and viewing-angle tests), and the keyframe
-//! decision. The state (NotInitialised, Ok, Lost) is exposed; losing track is a state, not an
-//! error.
+//! decision. The state (NotInitialised, Ok, Degraded, Lost) is exposed; losing track is a
+//! state, not an error.
 
 pub mod collapse;
 pub mod frame;
 pub mod initializer;
 mod local_map;
+pub mod quality;
 
 use nalgebra::{Vector2, Vector3};
 
@@ -16,6 +17,7 @@ pub use frame::{KeptImages, TrackedFrame};
 pub use initializer::{
     solve as solve_initialisation, InitAttempt, InitProblem, Initializer, Prepared,
 };
+pub use quality::{DegradedReason, PoseQuality};
 
 use crate::camera_model::PinholeRadtan;
 use crate::geometry::{CameraFromWorld, Se3};
@@ -28,13 +30,19 @@ use crate::optimize::MotionOnlyBa;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TrackingState {
     NotInitialised,
+    /// Tracked, and the pose passed every check of [`quality`]: one to drive on.
     Ok,
+    /// Tracked against the map, but the pose failed a check of [`quality`] (the reason is
+    /// [`Tracker::degraded`]): reported, not to be driven on; it makes no keyframe and tracking
+    /// carries on from it.
+    Degraded,
     Lost,
 }
 
 pub use crate::config::TrackingConfig;
 
-/// Tracks frames against the map. Owns its state machine (NotInitialised -> Ok <-> Lost):
+/// Tracks frames against the map. Owns its state machine (NotInitialised -> Ok <-> Lost, with
+/// `Degraded` beside Ok for a tracked pose that fails a [`quality`] check):
 /// the state and what the motion model carries between frames change only through its
 /// methods ([`start`](Self::start), [`reset`](Self::reset), [`keyframe_made`](Self::keyframe_made),
 /// [`commit`](Self::commit), tracking and relocalisation).
@@ -77,11 +85,46 @@ pub struct Tracker {
     out: Vec<bool>,
     idx: Vec<usize>,
     local: local_map::LocalMap,
+    /// The motion model's prediction for the frame being tracked (the jump check's anchor).
+    prediction: Option<CameraFromWorld>,
+    /// The last tracked (or relocalised) frame's pose quality and the check it failed.
+    quality: Option<PoseQuality>,
+    degraded: Option<DegradedReason>,
+    depths: Vec<f64>,
 }
 
 impl Tracker {
     pub fn state(&self) -> TrackingState {
         self.state
+    }
+
+    /// The last tracked frame's pose quality (None when it was lost).
+    pub fn quality(&self) -> Option<PoseQuality> {
+        self.quality
+    }
+
+    /// Why the last frame is `Degraded`, if it is.
+    pub fn degraded(&self) -> Option<DegradedReason> {
+        self.degraded
+    }
+
+    /// Measures the pose the last [`optimize_pose`](Self::optimize_pose) left in `f` (its
+    /// buffers still hold that optimisation) and judges it; `prediction` anchors the jump
+    /// check.
+    pub(crate) fn judge_pose(
+        &mut self,
+        f: &TrackedFrame,
+        prediction: Option<CameraFromWorld>,
+    ) -> (PoseQuality, Option<DegradedReason>) {
+        let fit = quality::PoseFit {
+            t_cw: &f.t_cw,
+            pts: &self.pts,
+            obs: &self.obs,
+            inv_s2: &self.inv,
+            outlier: &self.out,
+        };
+        let q = quality::measure(&self.motion_ba, &fit, prediction.as_ref(), &mut self.depths);
+        (q, q.judge(&self.config))
     }
 
     /// The keyframe the current pose is expressed against (the trajectory's anchor).
@@ -164,6 +207,10 @@ impl Tracker {
             out: Vec::with_capacity(max_features),
             idx: Vec::with_capacity(max_features),
             local: local_map::LocalMap::with_capacity(max_features * 8),
+            prediction: None,
+            quality: None,
+            degraded: None,
+            depths: Vec::with_capacity(max_features),
         }
     }
 
@@ -206,6 +253,7 @@ impl Tracker {
             Some(v) => v * self.last.t_cw.0,
             None => self.last.t_cw.0,
         };
+        self.prediction = self.velocity.map(|_| CameraFromWorld(pred));
         f.t_cw = CameraFromWorld(pred);
         for radius in [
             self.config.motion_search_radius,
@@ -363,6 +411,13 @@ impl Tracker {
             let n = local.track(self, map, f);
             self.local = local;
             if n >= self.config.min_inliers {
+                // A relocalisation the checks doubt is not taken: the next candidate is tried.
+                let (q, degraded) = self.judge_pose(f, None);
+                if degraded.is_some() {
+                    continue;
+                }
+                self.quality = Some(q);
+                self.degraded = None;
                 self.state = TrackingState::Ok;
                 self.velocity = None;
                 self.relocalisations += 1;
@@ -372,6 +427,8 @@ impl Tracker {
         }
         f.reset_matches();
         self.state = TrackingState::Lost;
+        self.quality = None;
+        self.degraded = None;
         self.state
     }
 
@@ -428,6 +485,9 @@ impl Tracker {
         self.rebase_last_frame(map);
         let mut n = self.track_motion_model(map, f);
         if n < 10 {
+            // The reference keyframe's search is for motion the model did not predict: no
+            // jump check against that prediction.
+            self.prediction = None;
             f.reset_matches();
             n = self.track_reference_keyframe(map, f);
         }
@@ -444,11 +504,30 @@ impl Tracker {
         self.reference_pose = self
             .reference_kf
             .and_then(|r| map.keyframe(r).map(|k| (r, k.t_cw)));
+        let prediction = self.prediction.take();
         if ok {
-            self.velocity = Some(f.t_cw.0 * self.last.t_cw.0.inverse());
-            self.state = TrackingState::Ok;
+            let (q, degraded) = self.judge_pose(f, prediction);
+            self.quality = Some(q);
+            self.degraded = degraded;
+            // After a jump the velocity it implies would mislead the next prediction.
+            self.velocity = (degraded != Some(DegradedReason::Jump))
+                .then(|| f.t_cw.0 * self.last.t_cw.0.inverse());
+            self.state = if degraded.is_some() {
+                tracing::debug!(
+                    frame = f.index,
+                    reason = degraded.map(|d| d.name()),
+                    sigma_ratio = q.centre_sigma_ratio(),
+                    mean_chi2 = q.mean_chi2,
+                    "pose degraded"
+                );
+                TrackingState::Degraded
+            } else {
+                TrackingState::Ok
+            };
         } else {
-            if self.state == TrackingState::Ok {
+            self.quality = None;
+            self.degraded = None;
+            if self.state != TrackingState::Lost {
                 self.lost_episodes += 1;
                 tracing::warn!(frame = f.index, "tracking lost");
             }

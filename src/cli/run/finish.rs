@@ -195,6 +195,17 @@ fn fill_tracking_report(report: &mut Report, system: &System, frame_timer: &Stag
     report.map_resets = system.stats.resets;
     report.poses_discarded_by_reset = system.stats.poses_discarded_by_reset;
     report.divergences = system.stats.divergences.clone();
+    report.degraded_frames = system.stats.degraded_frames.iter().sum();
+    report.degraded_reasons = sdslam::tracking::DegradedReason::ALL
+        .iter()
+        .map(|r| {
+            (
+                r.name().to_string(),
+                system.stats.degraded_frames[*r as usize],
+            )
+        })
+        .collect();
+    report.centre_sigma_pct_of_depth = system.stats.centre_sigma_pct.percentiles();
     report.lost_episodes = system.tracker.lost_episodes;
     report.relocalisations = system.tracker.relocalisations;
     report.loops_closed = system.stats.loops_closed;

@@ -171,7 +171,14 @@ impl System {
                     break;
                 }
             }
-            if n >= self.tracker.config.min_inliers {
+            // A backfilled pose passes the same checks as a tracked one (no motion model here,
+            // so no jump check); a doubtful one is left out and counted.
+            let judged =
+                (n >= self.tracker.config.min_inliers).then(|| self.tracker.judge_pose(tf, None).1);
+            if let Some(Some(reason)) = judged {
+                self.stats.degraded_frames[reason as usize] += 1;
+            }
+            if judged == Some(None) {
                 bf.step = Some(tf.t_cw.0 * bf.guess.unwrap_or(p1).inverse());
                 bf.guess = Some(tf.t_cw.0);
                 self.trajectory.push(TrajectoryEntry {
