@@ -181,10 +181,19 @@ struct BlackoutRun {
     path: f64,
 }
 
-/// The built-in orbit with frames 150..195 withheld (`--drop 150:45`).
-fn run_blackout(deterministic: bool) -> BlackoutRun {
+/// The built-in orbit (`frames` long) with frames 150..195 withheld (`--drop 150:45`).
+fn run_blackout(deterministic: bool, frames: usize) -> BlackoutRun {
     let out = tempfile::tempdir().unwrap();
-    let mut args = vec!["-q", "run", "synthetic", "--no-semidense", "--no-plots"];
+    let frames = frames.to_string();
+    let mut args = vec![
+        "-q",
+        "run",
+        "synthetic",
+        "--frames",
+        &frames,
+        "--no-semidense",
+        "--no-plots",
+    ];
     if deterministic {
         args.push("--deterministic");
     }
@@ -221,7 +230,7 @@ fn a_blackout_in_unmapped_space_starts_a_new_map_that_is_merged_back() {
         traj,
         kfs,
         path,
-    } = run_blackout(true);
+    } = run_blackout(true, 300);
     let frames = report["frames"].as_u64().unwrap() as f64;
     assert_eq!(report["maps_made"], 2, "{}", report["maps"]);
     assert_eq!(report["maps_merged"], 1, "{}", report["maps"]);
@@ -262,7 +271,7 @@ fn threaded_a_blackout_in_unmapped_space_keeps_every_frame_posed() {
         traj,
         path,
         ..
-    } = run_blackout(false);
+    } = run_blackout(false, 300);
     let frames = report["frames"].as_u64().unwrap() as f64;
     let tracked = report["tracked_frames_all_maps"].as_u64().unwrap() as f64;
     assert!(
@@ -281,6 +290,37 @@ fn threaded_a_blackout_in_unmapped_space_keeps_every_frame_posed() {
         report["maps_merged"],
         100.0 * worst
     );
+    assert!(
+        worst <= 0.05,
+        "a frame reported Ok is off by {:.1}%",
+        100.0 * worst
+    );
+}
+
+/// The same blackout on a faster orbit (240 frames), every thread running: the new map rejoins
+/// the first only where the orbit closes, from matches in one part of the image. The merge's
+/// similarity is chosen among several RANSAC hypotheses by how many matches a window of
+/// keyframes finds with it, and refused while its scale is poorly fixed; taken from the first
+/// hypothesis at once, it left the merged map 2.4% of the path off (5% on its worst frame).
+#[test]
+fn threaded_a_merge_from_matches_in_one_part_of_the_image_is_placed_right() {
+    let BlackoutRun {
+        report,
+        gt,
+        traj,
+        kfs,
+        path,
+    } = run_blackout(false, 240);
+    assert_eq!(report["maps_merged"], 1, "{}", report["maps"]);
+    let kf = ate(&gt, &kfs, 0.02, true).expect("keyframe ATE");
+    let worst = ate(&gt, &traj, 0.02, true).expect("frame ATE").max_m / path;
+    eprintln!(
+        "threaded merge on a 240-frame orbit: keyframe ATE {:.4} m = {:.3}% of {path:.2} m, worst Ok {:.2}%",
+        kf.rmse_m,
+        100.0 * kf.rmse_m / path,
+        100.0 * worst
+    );
+    assert!(kf.rmse_m / path <= 0.01, "keyframe ATE {:.4} m", kf.rmse_m);
     assert!(
         worst <= 0.05,
         "a frame reported Ok is off by {:.1}%",

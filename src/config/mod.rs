@@ -480,6 +480,7 @@ impl Config {
             ("relocalisation.chi2", r.chi2),
             ("motion_only.chi2", m.chi2),
             ("loop_closing.revisit_path_ratio", c.revisit_path_ratio),
+            ("loop_closing.max_scale_sigma", c.max_scale_sigma),
             (
                 "loop_closing.revisit_min_path_depths",
                 c.revisit_min_path_depths,

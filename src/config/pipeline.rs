@@ -133,6 +133,11 @@ pub struct LoopClosingConfig {
     /// ...and at least this many times the new keyframe's median scene depth (so that drift
     /// can have built up along it).
     pub revisit_min_path_depths: f64,
+    /// A loop's similarity is taken only when the matches of its refinement window (the current
+    /// keyframe and its best covisibles) fix the relative scale to this 1-sigma share (log
+    /// scale, one pixel of keypoint noise; ours, not ORB-SLAM's): otherwise the correction
+    /// would move a whole map by the error, and a later keyframe tries again.
+    pub max_scale_sigma: f64,
 }
 
 impl Default for LoopClosingConfig {
@@ -144,6 +149,7 @@ impl Default for LoopClosingConfig {
             pose_graph_iterations: 20,
             revisit_path_ratio: 5.0,
             revisit_min_path_depths: 2.0,
+            max_scale_sigma: 0.015,
         }
     }
 }

@@ -21,6 +21,8 @@ impl LoopCloser {
             .keyframes()
             .map(|(id, k)| (id, se3_to_sim3(&k.t_cw.0)))
             .collect();
+        let edges_before: HashSet<(KeyFrameId, KeyFrameId)> =
+            map.essential_edges().into_iter().collect();
         let t_wc = before[&kf].inverse();
         // Corrected S_iw for the current keyframe and its neighbours.
         let mut corrected: HashMap<KeyFrameId, Sim3> = HashMap::new();
@@ -83,7 +85,7 @@ impl LoopCloser {
             map.merge_maps(from, into, kf, loop_kf);
             tracing::info!(from, into, scale = 1.0 / s_cw.scale, "maps merged");
         }
-        self.optimize_essential_graph(map, &before, &corrected, &moved, loop_kf);
+        self.optimize_essential_graph(map, &before, &edges_before, &corrected, &moved, loop_kf);
         map.note_correction();
         LoopReport {
             kind: if merge {
@@ -98,26 +100,21 @@ impl LoopCloser {
         }
     }
 
-    /// Sim3 pose graph over the essential graph: edges measured from the poses before the
-    /// correction, except those between corrected keyframes and the rest (the new loop
-    /// links), measured after it; the loop keyframe is fixed. Keyframes and points are then
-    /// moved with their keyframe's (reference keyframe's) correction.
+    /// Sim3 pose graph over the essential graph: an edge that was there before the correction
+    /// keeps the relative pose it had then; an edge the loop made (loop fusion's links, the
+    /// loop edge, a merged map's re-rooted spanning tree) is measured after the correction,
+    /// when both its keyframes are in one frame (ORB-SLAM's loop connections). The loop
+    /// keyframe is fixed. Keyframes and points are then moved with their keyframe's
+    /// (reference keyframe's) correction.
     pub(super) fn optimize_essential_graph(
         &mut self,
         map: &mut Map,
         before: &HashMap<KeyFrameId, Sim3>,
+        edges_before: &HashSet<(KeyFrameId, KeyFrameId)>,
         corrected: &HashMap<KeyFrameId, Sim3>,
         moved_by: &HashMap<MapPointId, KeyFrameId>,
         fixed: KeyFrameId,
     ) {
-        let mut loop_side: HashSet<KeyFrameId> = map
-            .keyframe(fixed)
-            .map(|k| k.covisibles.iter().map(|&(c, _)| c).collect())
-            .unwrap_or_default();
-        loop_side.insert(fixed);
-        for c in corrected.keys() {
-            loop_side.remove(c);
-        }
         let ids: Vec<KeyFrameId> = map.keyframes().map(|(id, _)| id).collect();
         let index: HashMap<KeyFrameId, u32> = ids
             .iter()
@@ -135,11 +132,7 @@ impl LoopCloser {
             let (Some(&ia), Some(&ib)) = (index.get(&a), index.get(&b)) else {
                 continue;
             };
-            // New loop links (a corrected keyframe and the loop side): the relative pose after
-            // the correction; every other edge: as it was before it.
-            let is_loop_link = (corrected.contains_key(&a) && loop_side.contains(&b))
-                || (corrected.contains_key(&b) && loop_side.contains(&a));
-            let (sa, sb) = if is_loop_link {
+            let (sa, sb) = if !edges_before.contains(&(a, b)) {
                 (Some(&poses[ia as usize]), Some(&poses[ib as usize]))
             } else {
                 (before.get(&a), before.get(&b))

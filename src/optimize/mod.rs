@@ -11,10 +11,12 @@ pub mod lie;
 pub mod motion_only;
 pub mod pose_graph;
 pub mod robust;
+pub mod sim3_window;
 pub mod skyline;
 pub mod two_view_ba;
 
 pub use ba::{BaObservation, BaOptions, BaProblem, BaReport, BundleAdjuster};
 pub use motion_only::{MotionOnlyBa, MotionOnlyConfig};
 pub use pose_graph::{PoseGraph, PoseGraphEdge, PoseGraphReport};
+pub use sim3_window::{optimize_window_sim3, window_sim3_covariance, WindowObservation};
 pub use two_view_ba::refine_two_view;
