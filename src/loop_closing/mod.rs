@@ -42,6 +42,9 @@ use crate::place_recognition::{l1_score, BowVector};
 
 pub use crate::config::LoopClosingConfig;
 
+/// Runs a step of loop closing with the map (locked for the step, in threaded mode).
+pub type MapAccess<'a> = dyn FnMut(&mut dyn FnMut(&mut Map)) + 'a;
+
 /// Keyframes of the current side, besides the current one, over which a loop's similarity is
 /// refined.
 const WINDOW_KEYFRAMES: usize = 5;
@@ -126,23 +129,74 @@ impl LoopCloser {
         }
     }
 
-    /// Detects and closes a loop at keyframe `kf` (just mapped). `index` gives its bag of words
-    /// and the candidates.
+    /// Detects and closes a loop at keyframe `kf` (just mapped), all under the caller's access
+    /// to the map (deterministic mode). `index` gives its bag of words and the candidates.
     pub fn process(
         &mut self,
         map: &mut Map,
         index: &PlaceIndex,
         kf: KeyFrameId,
     ) -> Option<LoopReport> {
-        // Detection runs on every keyframe: it carries the consistency groups forward.
-        let candidates = self.detect(map, index, kf).unwrap_or_default();
-        let mut report = candidates.into_iter().find_map(|c| self.close(map, kf, c));
+        let candidates = self.candidates(map, index, kf);
+        self.close_in_steps(kf, candidates, &mut |step: &mut dyn FnMut(&mut Map)| {
+            step(map)
+        })
+    }
+
+    /// Loop detection for `kf` (map and place index locked by the caller): the candidates
+    /// consistent over the last keyframes. Runs on every keyframe: it carries the consistency
+    /// groups forward.
+    pub fn candidates(&mut self, map: &Map, index: &PlaceIndex, kf: KeyFrameId) -> Vec<KeyFrameId> {
+        self.detect(map, index, kf).unwrap_or_default()
+    }
+
+    /// Closes a loop at `kf` with the first of `candidates` that verifies (else a revisit), in
+    /// short steps each run through `access` (which locks the map for it): the hypotheses of one
+    /// candidate, the refinement of one hypothesis, the correction. A threaded caller releases
+    /// the map between steps, so tracking waits for one step at most; every step re-reads
+    /// what it uses.
+    pub fn close_in_steps(
+        &mut self,
+        kf: KeyFrameId,
+        candidates: Vec<KeyFrameId>,
+        access: &mut MapAccess<'_>,
+    ) -> Option<LoopReport> {
+        let mut report = None;
+        for c in candidates {
+            let mut hypotheses = Vec::new();
+            access(&mut |map: &mut Map| hypotheses = self.hypotheses(map, kf, c));
+            // The hypothesis the most window matches agree with (see `hypotheses`).
+            let mut best: Option<(Sim3, usize)> = None;
+            for h in &hypotheses {
+                access(&mut |map: &mut Map| {
+                    if let Some((s, n)) = self.refine_over_window(map, kf, c, h) {
+                        if best.as_ref().is_none_or(|b| n > b.1) {
+                            best = Some((s, n));
+                        }
+                    }
+                });
+            }
+            if let Some((s_cw, _)) = best {
+                access(&mut |map: &mut Map| report = self.close_with(map, kf, c, &s_cw));
+            }
+            if report.is_some() {
+                break;
+            }
+        }
         if report.is_none() {
-            report = self
-                .detect_revisit(map, kf)
-                .and_then(|c| self.close_revisit(map, kf, c));
+            access(&mut |map: &mut Map| {
+                report = self
+                    .detect_revisit(map, kf)
+                    .and_then(|c| self.close_revisit(map, kf, c));
+            });
         }
         let r = report?;
+        access(&mut |map: &mut Map| self.note_closed(map, kf, &r));
+        Some(r)
+    }
+
+    /// Counts, records and logs a closed loop; detection starts afresh.
+    fn note_closed(&mut self, map: &Map, kf: KeyFrameId, r: &LoopReport) {
         self.loops_closed += 1;
         if r.kind == LoopKind::Revisit {
             self.revisits_closed += 1;
@@ -164,7 +218,6 @@ impl LoopCloser {
         tracing::info!(kind = ?r.kind, matches = r.matches, fused = r.fused_points, "loop closed");
         self.groups.clear();
         self.last_loop_serial = map.keyframe(kf).map_or(0, |k| k.serial);
-        Some(r)
     }
 
     /// Whether `kf` may close a loop at all: enough keyframes, and not too soon after the last.
@@ -262,9 +315,17 @@ impl LoopCloser {
         (!accepted.is_empty()).then_some(accepted)
     }
 
-    /// Sim3 between `kf` and candidate `c`, more matches by projection, then the correction.
-    fn close(&mut self, map: &mut Map, kf: KeyFrameId, c: KeyFrameId) -> Option<LoopReport> {
-        let (k1, k2) = (map.keyframe(kf)?, map.keyframe(c)?);
+    /// Similarity hypotheses `S_cw` of `kf` in the frame of candidate `c`, from their map points
+    /// matched by descriptor: RANSAC over Horn's closed form with a few seeds, the distinct
+    /// solutions. The 3D fit of its few inliers, often one patch of the image (a far wall: a
+    /// plane leaves two poses that fit its points about equally well), can take the wrong one
+    /// of two poses; each hypothesis is refined over a window of `kf` and its best covisibles
+    /// and the one the most matches agree with is taken (a merge was placed half a metre off
+    /// by the first seed's hypothesis: 381 window inliers, against 772 for the right one).
+    fn hypotheses(&self, map: &Map, kf: KeyFrameId, c: KeyFrameId) -> Vec<Sim3> {
+        let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(c)) else {
+            return Vec::new();
+        };
         // Map points of both keyframes matched by descriptor (ratio 0.75, unique).
         let pts2: Vec<(usize, MapPointId)> = k2.observed().collect();
         let mut pairs: Vec<(usize, usize, MapPointId, MapPointId)> = Vec::new();
@@ -290,14 +351,16 @@ impl LoopCloser {
             }
         }
         if pairs.len() < 20 {
-            return None;
+            return Vec::new();
         }
         let (t1, t2) = (k1.t_cw, k2.t_cw);
         let mut p1 = Vec::with_capacity(pairs.len());
         let mut p2 = Vec::with_capacity(pairs.len());
         let (mut u1, mut u2, mut s1, mut s2) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for &(i, j, a, b) in &pairs {
-            let (pa, pb) = (map.point(a)?, map.point(b)?);
+            let (Some(pa), Some(pb)) = (map.point(a), map.point(b)) else {
+                continue;
+            };
             p1.push(t1.transform(&pa.position));
             p2.push(t2.transform(&pb.position));
             let (ka, kb) = (&k1.keypoints[i], &k2.keypoints[j]);
@@ -314,14 +377,6 @@ impl LoopCloser {
             u2: &u2,
             sigma2_2: &s2,
         };
-        // Hypotheses: RANSAC over Horn's closed form with a few seeds. The 3D fit of its few
-        // inliers, often one patch of the image (a far wall: a plane leaves two poses that fit
-        // its points about equally well), can take the wrong one of two poses; each distinct
-        // hypothesis is refined over a window of `kf` and its best covisibles (every match
-        // found by projection into each, pose and scale together), and the one the most
-        // matches agree with is taken (a merge was placed half a metre off by the first seed's
-        // hypothesis: 381 window inliers, against 772 for the right one).
-        let mut best: Option<(Sim3, usize)> = None;
         let mut tried: Vec<Sim3> = Vec::new();
         for seed in 0..SIM3_HYPOTHESES {
             let cfg = Sim3RansacConfig {
@@ -332,24 +387,28 @@ impl LoopCloser {
                 continue;
             };
             let s_cw = sim3_compose(&sol.s12, &se3_to_sim3(&t2.0));
-            if tried.iter().any(|t| same_similarity(t, &s_cw)) {
-                continue;
-            }
-            tried.push(s_cw);
-            let Some((refined, n)) = self.refine_over_window(map, kf, c, &s_cw) else {
-                continue;
-            };
-            if best.as_ref().is_none_or(|b| n > b.1) {
-                best = Some((refined, n));
+            if !tried.iter().any(|t| same_similarity(t, &s_cw)) {
+                tried.push(s_cw);
             }
         }
-        let (s_cw, _) = best?;
-        let mut matched: Vec<Option<MapPointId>> = vec![None; k1.keypoints.len()];
-        let n_matches = self.match_loop_group(map, kf, c, &s_cw, &mut matched);
+        tried
+    }
+
+    /// The loop at `kf` with candidate `c` and the verified `s_cw`: at least `min_matches`
+    /// matches by projection, then the correction.
+    fn close_with(
+        &mut self,
+        map: &mut Map,
+        kf: KeyFrameId,
+        c: KeyFrameId,
+        s_cw: &Sim3,
+    ) -> Option<LoopReport> {
+        let mut matched: Vec<Option<MapPointId>> = vec![None; map.keyframe(kf)?.keypoints.len()];
+        let n_matches = self.match_loop_group(map, kf, c, s_cw, &mut matched);
         if n_matches < self.config.min_matches {
             return None;
         }
-        Some(self.correct(map, kf, c, &s_cw, &matched, n_matches))
+        Some(self.correct(map, kf, c, s_cw, &matched, n_matches))
     }
 
     /// `s_cw` refined over a window of `kf` and its best covisibles (at their poses relative

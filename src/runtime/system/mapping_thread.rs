@@ -107,13 +107,19 @@ pub(super) fn spawn_mapper(
     gate: crate::runtime::ForegroundGate,
     map_wanted: crate::runtime::ForegroundGate,
 ) -> Mapping {
+    let gates = YieldGates { gate, map_wanted };
     let mut mapper = setup.local_mapper();
     let (tx, rx) = bounded::<KeyFrameId>(8);
-    let (loop_tx, closer) =
-        match spawn_loop_closer(setup, Arc::clone(&map), cpus.clone(), Arc::clone(&places)) {
-            Some((t, h)) => (Some(t), Some(h)),
-            None => (None, None),
-        };
+    let (loop_tx, closer) = match spawn_loop_closer(
+        setup,
+        Arc::clone(&map),
+        cpus.clone(),
+        Arc::clone(&places),
+        gates.clone(),
+    ) {
+        Some((t, h)) => (Some(t), Some(h)),
+        None => (None, None),
+    };
     // Without a loop-closing thread, the mapping thread closes loops itself.
     let mut own = loop_tx.is_none().then(|| LoopWorker::new(setup));
     let idle = Arc::new(AtomicBool::new(true));
@@ -134,20 +140,14 @@ pub(super) fn spawn_mapper(
                 // The map is locked per step. No step starts while tracking waits for the
                 // lock, and with frames paced in real time none starts while a frame is being
                 // tracked (steps run in the gaps); back to back, mapping runs alongside.
-                let yield_to_tracking = || {
-                    if gate.paced() {
-                        gate.wait();
-                    }
-                    map_wanted.wait();
-                };
                 let has_ba = mapper.prepare_in_steps(kf, &mut |step: &mut dyn FnMut(&mut Map)| {
-                    yield_to_tracking();
+                    gates.wait();
                     step(&mut lock(&map))
                 });
                 if has_ba {
                     mapper.solve();
                 }
-                yield_to_tracking();
+                gates.wait();
                 mapper.finish(&mut lock(&map), kf);
                 timer.record(t.elapsed());
                 match (&loop_tx, &mut own) {
@@ -156,7 +156,7 @@ pub(super) fn spawn_mapper(
                     (Some(t), _) => {
                         let _ = t.send(kf);
                     }
-                    (None, Some(w)) => w.process_shared(&map, &places, kf),
+                    (None, Some(w)) => w.process_shared(&map, &places, kf, &gates),
                     (None, None) => {}
                 }
                 idle_t.store(rx.is_empty(), Ordering::Release);
@@ -177,6 +177,24 @@ pub(super) fn spawn_mapper(
     }
 }
 
+/// What a background step waits for before taking the map: tracking wanting the lock, and,
+/// with frames paced in real time, a frame being tracked (steps run in the gaps; back to
+/// back, mapping runs alongside).
+#[derive(Clone)]
+pub(super) struct YieldGates {
+    gate: crate::runtime::ForegroundGate,
+    map_wanted: crate::runtime::ForegroundGate,
+}
+
+impl YieldGates {
+    fn wait(&self) {
+        if self.gate.paced() {
+            self.gate.wait();
+        }
+        self.map_wanted.wait();
+    }
+}
+
 /// The loop-closing thread: detection (and correction) per mapped keyframe, then, after a
 /// loop, a full BA on a background thread of its own.
 fn spawn_loop_closer(
@@ -184,6 +202,7 @@ fn spawn_loop_closer(
     map: Arc<Mutex<Map>>,
     cpus: Vec<usize>,
     places: Arc<Mutex<PlaceIndex>>,
+    gates: YieldGates,
 ) -> Option<(Sender<KeyFrameId>, JoinHandle<LoopStats>)> {
     let mut worker = LoopWorker::new(setup);
     let (tx, rx) = bounded::<KeyFrameId>(8);
@@ -195,7 +214,7 @@ fn spawn_loop_closer(
             while let Ok(kf) = rx.recv() {
                 n += 1;
                 crate::runtime::faults::maybe_panic("panic:loop_closing", n);
-                worker.process_shared(&map, &places, kf);
+                worker.process_shared(&map, &places, kf, &gates);
             }
             worker.finish()
         })
@@ -262,20 +281,34 @@ impl LoopWorker {
         closed
     }
 
-    /// Threaded mode: close under the map lock, then the full BA on its own thread, copied
-    /// under a short lock, solved without it, merged under a short lock (dropped if another
-    /// loop moved the map meanwhile).
+    /// Threaded mode: detection under the map and place-index locks, then the closing in
+    /// short steps, each under the map lock and none started while tracking waits for it (or,
+    /// paced in real time, while a frame is tracked); then the full BA on its own thread,
+    /// copied under a short lock, solved without it, merged under a short lock (dropped if
+    /// another loop moved the map meanwhile).
     fn process_shared(
         &mut self,
         map: &Arc<Mutex<Map>>,
         places: &Mutex<PlaceIndex>,
         kf: KeyFrameId,
+        gates: &YieldGates,
     ) {
-        let closed = {
-            let mut m = lock(map);
+        let candidates = {
+            let m = lock(map);
             let p = places.lock().unwrap_or_else(|e| e.into_inner());
-            self.close(&mut m, &p, kf)
+            self.closer.candidates(&m, &p, kf)
         };
+        let t = Instant::now();
+        let closed = self
+            .closer
+            .close_in_steps(kf, candidates, &mut |step: &mut dyn FnMut(&mut Map)| {
+                gates.wait();
+                step(&mut lock(map))
+            })
+            .is_some();
+        if closed {
+            self.timer.record(t.elapsed());
+        }
         if !(closed && self.global_ba_after_loop) {
             return;
         }
