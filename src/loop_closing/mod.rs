@@ -4,8 +4,8 @@
 //! consistent; the similarity between the keyframe and the candidate comes from matched map
 //! points (Sim3 RANSAC with a few seeds; each distinct hypothesis refined on the reprojections
 //! of the loop's points into a window of the keyframe and its best covisibles, the one with
-//! the most inliers taken, refused while its scale is poorly fixed; then >= 40 matches by
-//! projection); the keyframe and its
+//! the most inliers taken, refused while its scale is poorly fixed or a different solution
+//! is nearly as good; then >= 40 matches by projection); the keyframe and its
 //! neighbours are corrected by it, duplicated points fused, and the essential graph optimised
 //! as a Sim3 pose graph with the loop keyframe fixed, moving every keyframe and point.
 //!
@@ -51,6 +51,17 @@ const WINDOW_KEYFRAMES: usize = 5;
 
 /// Sim3 RANSAC runs (seeds) whose distinct hypotheses are refined and compared.
 const SIM3_HYPOTHESES: u64 = 4;
+
+/// The best refined hypothesis must have this many times the window inliers of any different
+/// solution.
+const AMBIGUITY_RATIO: f64 = 1.5;
+
+/// Refined similarities placing the current keyframe within 2% of the map's unit scene depth
+/// and 1 deg of each other: one solution reached from two hypotheses.
+fn same_solution(a: &Sim3, b: &Sim3) -> bool {
+    let centre = |s: &Sim3| s.inverse().translation;
+    (centre(a) - centre(b)).norm() < 0.02 && a.rotation.angle_to(&b.rotation) < 1f64.to_radians()
+}
 
 /// Two similarities within a millimetre-and-milliradian of each other (one hypothesis found
 /// twice).
@@ -165,19 +176,25 @@ impl LoopCloser {
         for c in candidates {
             let mut hypotheses = Vec::new();
             access(&mut |map: &mut Map| hypotheses = self.hypotheses(map, kf, c));
-            // The hypothesis the most window matches agree with (see `hypotheses`).
-            let mut best: Option<(Sim3, usize)> = None;
+            // The hypothesis the most window matches agree with (see `hypotheses`); when a
+            // different solution is nearly as good, the place is ambiguous and the loop waits
+            // for a later keyframe.
+            let mut refined: Vec<(Sim3, usize)> = Vec::new();
             for h in &hypotheses {
                 access(&mut |map: &mut Map| {
-                    if let Some((s, n)) = self.refine_over_window(map, kf, c, h) {
-                        if best.as_ref().is_none_or(|b| n > b.1) {
-                            best = Some((s, n));
-                        }
-                    }
+                    refined.extend(self.refine_over_window(map, kf, c, h));
                 });
             }
-            if let Some((s_cw, _)) = best {
-                access(&mut |map: &mut Map| report = self.close_with(map, kf, c, &s_cw));
+            if let Some(&(s_cw, n)) = refined.iter().max_by_key(|r| r.1) {
+                let rival = refined
+                    .iter()
+                    .filter(|r| !same_solution(&r.0, &s_cw))
+                    .map(|r| r.1)
+                    .max()
+                    .unwrap_or(0);
+                if n as f64 >= AMBIGUITY_RATIO * rival as f64 {
+                    access(&mut |map: &mut Map| report = self.close_with(map, kf, c, &s_cw));
+                }
             }
             if report.is_some() {
                 break;
@@ -423,9 +440,18 @@ impl LoopCloser {
         c: KeyFrameId,
         s_cw: &Sim3,
     ) -> Option<(Sim3, usize)> {
-        let k = map.keyframe(kf)?;
+        let (k, loop_kf) = (map.keyframe(kf)?, map.keyframe(c)?);
+        // Only keyframes the correction moves with `kf`: not the loop side (`c` and its
+        // covisibles), which tracking may already have joined to `kf` near the loop.
+        let loop_side = |w: KeyFrameId| w == c || loop_kf.covisibles.iter().any(|&(x, _)| x == w);
         let window: Vec<KeyFrameId> = std::iter::once(kf)
-            .chain(k.best_covisibles(WINDOW_KEYFRAMES))
+            .chain(
+                k.covisibles
+                    .iter()
+                    .map(|&(w, _)| w)
+                    .filter(|&w| !loop_side(w))
+                    .take(WINDOW_KEYFRAMES),
+            )
             .collect();
         let t_kc = k.t_cw.0.inverse();
         let rel: Vec<Sim3> = window
