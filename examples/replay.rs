@@ -38,6 +38,9 @@ fn main() -> Result<(), Box<dyn Error>> {
 
     // 2. The SLAM system: local mapping and semi-dense mapping on their own threads.
     let mut system = System::new(&calib, &Config::default(), info.len.unwrap_or(10_000), true);
+    // Frames come faster than real time: initialisation is attempted on every frame (a
+    // camera would leave this off, keeping attempts off the tracking thread).
+    system.set_replay(true);
 
     // 3. A consumer of poses on its own thread, fed through a bounded channel.
     let (tx, rx) = crossbeam_channel::bounded::<(f64, WorldFromCamera)>(64);

@@ -151,6 +151,8 @@ pub struct System {
     backfill: Backfill,
     /// Track against the map without changing it (no keyframes, no BA, no reset).
     localize_only: bool,
+    /// A recording fed as fast as it is processed ([`set_replay`](Self::set_replay)).
+    replay: bool,
     frame: TrackedFrame,
     trajectory: Vec<TrajectoryEntry>,
     /// Undistorts raw frames for [`process_frame`](Self::process_frame) (taken out while used).
@@ -270,6 +272,7 @@ impl System {
             gate,
             map_wanted,
             localize_only: false,
+            replay: false,
             finished: false,
             init: Initializer::new(max_features, w, h).with_config(config.initialisation.clone()),
             init_solver: if threaded {
@@ -346,6 +349,16 @@ impl System {
     /// running BA or resetting it.
     pub fn set_localize_only(&mut self, on: bool) {
         self.localize_only = on;
+    }
+
+    /// Frames come from a recording, fed as fast as they are processed (not from a camera,
+    /// nor paced in real time): initialisation attempts run on the tracking thread, one per
+    /// frame, as in the deterministic mode. Off the tracking thread (for the frame deadline)
+    /// one attempt is in flight at a time and the frames meanwhile are not attempted; replayed
+    /// back to back, a highway clip then initialised 27 frames late and its map was lost at
+    /// once (kitti01_51: 2-17 of 51 frames posed, against 42 replayed in real time).
+    pub fn set_replay(&mut self, on: bool) {
+        self.replay = on;
     }
 
     /// The worker thread that has died (panicked) during the run, if any: the caller should

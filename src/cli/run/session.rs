@@ -122,6 +122,8 @@ pub fn start(s: &Session, source: Box<dyn FrameSource>) -> Result<(Running, Box<
         load_map(&mut system, path)?;
     }
     system.set_localize_only(s.args.localize_only);
+    // A recording fed as fast as it is processed: initialisation attempts on every frame.
+    system.set_replay(s.pacing.is_none());
     // The caller's thread tracks; the mapping threads were pinned (if configured) as they
     // started.
     let cpus = &s.config.runtime.tracking_cpus;

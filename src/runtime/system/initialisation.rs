@@ -14,7 +14,9 @@ impl System {
         gray: &[u8],
         rgb: Option<&[u8]>,
     ) -> TrackingState {
-        if self.init_solver.is_some() {
+        // Off the tracking thread for the frame deadline; a replay has none, and attempts
+        // made on every frame (not only when the solver is free) start the map sooner.
+        if self.init_solver.is_some() && !self.replay {
             return self.initialize_async(map, gray, rgb);
         }
         let mut ready = None;
