@@ -933,3 +933,86 @@ fn synth_folder_replays_through_the_file_backed_mock() {
         3
     );
 }
+
+#[test]
+fn semidense_final_writes_both_clouds_and_densify_takes_its_keyframes() {
+    let d = tempfile::tempdir().unwrap();
+    let seq = d.path().join("seq");
+    let run = d.path().join("run");
+    common::synth_folder(&seq, 90, 1);
+    let (ok, _, err) = sdslam(&[
+        "run",
+        seq.to_str().unwrap(),
+        "--deterministic",
+        "--semidense-final",
+        "--no-plots",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let r = report(&run);
+    assert_eq!(r["semidense_mode"], "tuned");
+    assert!(r["semidense_non_paper_settings"]["early_reject_after"].is_string());
+    let f = &r["semidense_final"];
+    assert!(f["keyframes"].as_u64().unwrap() >= 5, "{f}");
+    let read = |name: &str| {
+        let p = run.join(name);
+        sdslam::io::decode_ply(&std::fs::read(&p).unwrap(), &p)
+            .unwrap()
+            .len() as u64
+    };
+    assert_eq!(read("semidense.ply"), f["points"].as_u64().unwrap());
+    assert_eq!(
+        read("semidense_online.ply"),
+        f["online_points"].as_u64().unwrap()
+    );
+    let (final_acc, online_acc) = (&r["semidense_accuracy"], &f["online_accuracy"]);
+    assert!(
+        final_acc["median_relative_error"].as_f64().unwrap() < 0.01,
+        "{final_acc} (online {online_acc})"
+    );
+    // The run's keyframes, their poses and order, densified offline.
+    let out = d.path().join("densify");
+    let kfs = run.join("keyframes.txt");
+    let (ok, _, err) = sdslam(&[
+        "densify",
+        seq.to_str().unwrap(),
+        "--keyframes",
+        kfs.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let dr = report(&out);
+    assert_eq!(
+        dr["keyframes"].as_u64().unwrap() as usize,
+        read_tum_trajectory(&kfs).unwrap().len()
+    );
+    assert!(
+        dr["semidense_accuracy"]["median_relative_error"]
+            .as_f64()
+            .unwrap()
+            < 0.01
+    );
+    // Paper mode says so, with nothing non-paper in force.
+    let paper = d.path().join("paper.toml");
+    std::fs::write(&paper, "[semidense]\nmode = \"paper\"\n").unwrap();
+    let out = d.path().join("paper");
+    let (ok, _, err) = sdslam(&[
+        "run",
+        seq.to_str().unwrap(),
+        "--deterministic",
+        "--frames",
+        "40",
+        "--no-plots",
+        "--config",
+        paper.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let r = report(&out);
+    assert_eq!(r["semidense_mode"], "paper");
+    assert_eq!(r["semidense_non_paper_settings"], serde_json::json!({}));
+    assert!(r["semidense_final"].is_null());
+}

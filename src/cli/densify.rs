@@ -20,12 +20,17 @@ use super::source;
 pub struct DensifyArgs {
     /// A TUM RGB-D folder, a EuRoC folder, an image folder with `times.txt`, or `synthetic`.
     source: String,
-    /// Poses (TUM format, `T_wc`): a refined trajectory or the ground truth.
-    #[arg(long)]
-    poses: PathBuf,
+    /// Poses (TUM format, `T_wc`): a refined trajectory or the ground truth. Optional with
+    /// `--keyframes` (whose poses are then used).
+    #[arg(long, required_unless_present = "keyframes")]
+    poses: Option<PathBuf>,
     /// Make every K-th frame with a pose a keyframe.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 10, conflicts_with = "keyframes")]
     every: usize,
+    /// The keyframes (TUM format, e.g. a run's keyframes.txt): the frames at these times, in
+    /// this order, are the keyframes (instead of every K-th).
+    #[arg(long, value_name = "FILE")]
+    keyframes: Option<PathBuf>,
     /// Also write OUT/depth/<timestamp>.png per keyframe (depth x 5000 in pose units).
     #[arg(long)]
     depth_maps: bool,
@@ -63,9 +68,28 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
         None => Config::default(),
     };
     io::prepare_output_dir(&a.out)?;
-    let poses = read_tum_trajectory(&a.poses)?;
+    let chosen = match &a.keyframes {
+        Some(p) => {
+            let k = read_tum_trajectory(p)?;
+            if k.is_empty() {
+                return Err(Error::Invalid(format!("{}: no keyframes", p.display())));
+            }
+            Some(k)
+        }
+        None => None,
+    };
+    let poses_path = a
+        .poses
+        .as_ref()
+        .or(a.keyframes.as_ref())
+        .cloned()
+        .unwrap_or_default();
+    let poses = read_tum_trajectory(&poses_path)?;
     if poses.is_empty() {
-        return Err(Error::Invalid(format!("{}: no poses", a.poses.display())));
+        return Err(Error::Invalid(format!(
+            "{}: no poses",
+            poses_path.display()
+        )));
     }
     let mut opened = source::open(
         Some(&a.source),
@@ -77,7 +101,10 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
     let info = opened.source.info().clone();
     let camera = calib.camera.undistorted();
     let mut rectifier = FrameRectifier::new(&calib.camera);
-    let max_kf = info.len.unwrap_or(100_000) / a.every + 2;
+    let max_kf = match &chosen {
+        Some(k) => k.len() + 2,
+        None => info.len.unwrap_or(100_000) / a.every + 2,
+    };
     let mut densifier = Densifier::new(&camera, &config, max_kf);
     let mut frame = Frame::new(info.width, info.height);
     let (mut with_pose, mut keyframes) = (0usize, 0usize);
@@ -106,7 +133,11 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
             continue;
         };
         with_pose += 1;
-        if (with_pose - 1) % a.every != 0 {
+        let is_keyframe = match &chosen {
+            Some(k) => pose_at(k, frame.timestamp, 0.02).is_some(),
+            None => (with_pose - 1) % a.every == 0,
+        };
+        if !is_keyframe {
             continue;
         }
         let input = rectifier.apply(&frame);
@@ -118,7 +149,7 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
     if keyframes == 0 {
         return Err(Error::Invalid(format!(
             "{}: no frame of {} has a pose within 20 ms",
-            a.poses.display(),
+            poses_path.display(),
             a.source
         )));
     }

@@ -49,6 +49,11 @@ pub struct RunArgs {
     /// (16-bit, depth x 5000 in map units, 0 = no estimate).
     #[arg(long)]
     depth_maps: bool,
+    /// After the final full BA, reconstruct every keyframe again with its covisible
+    /// neighbours of the final map (the paper's end-of-session reconstruction): semidense.ply
+    /// is then that cloud, the online one is semidense_online.ply.
+    #[arg(long, conflicts_with = "no_semidense")]
+    semidense_final: bool,
     /// Save the map at the end (versioned binary with checksum, written atomically).
     #[arg(long, value_name = "FILE")]
     save_map: Option<PathBuf>,
@@ -83,6 +88,7 @@ impl RunArgs {
             deterministic: false,
             frames: None,
             depth_maps: false,
+            semidense_final: false,
             drop: None,
             camera: source::CameraArgs::default(),
             save_map: None,

@@ -87,11 +87,30 @@ pub enum OrbScore {
     Fast,
 }
 
+/// Which semi-dense algorithm runs: the paper's, or the paper's with the additions measured
+/// to help (docs/DECISIONS.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SemiDenseMode {
+    /// The paper as written: every addition below off, whatever its setting (readings of
+    /// the text where it is ambiguous: [`SemiDenseConfig::PAPER_READINGS`]).
+    Paper,
+    /// The additions on as configured (`early_reject_after`, `min_baseline_ratio`,
+    /// `max_similarity_error`, `consensus_window`, `prior_cell_px`).
+    #[default]
+    Tuned,
+}
+
 /// Semi-dense mapping (Mur-Artal & Tardós, RSS 2015, section III).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SemiDenseConfig {
     pub enabled: bool,
+    /// `paper` switches off every addition to the paper; `tuned` (default) keeps them.
+    pub mode: SemiDenseMode,
+    /// The inter-keyframe consistency check (section III-E); off only to measure what it
+    /// removes (the paper's claim of few outliers rests on it).
+    pub inter_check: bool,
     /// N: covisible keyframes searched per keyframe.
     pub n_neighbours: usize,
     /// sigma_I: intensity noise, grey levels.
@@ -162,6 +181,8 @@ impl Default for SemiDenseConfig {
     fn default() -> Self {
         SemiDenseConfig {
             enabled: true,
+            mode: SemiDenseMode::Tuned,
+            inter_check: true,
             n_neighbours: 7,
             sigma_i: 20.0,
             lambda_g: 8.0,
@@ -184,6 +205,76 @@ impl Default for SemiDenseConfig {
             min_baseline_ratio: 0.05,
             max_points: 8_000_000,
         }
+    }
+}
+
+impl SemiDenseConfig {
+    /// How the paper's text is read where it is ambiguous (recorded in report.json):
+    /// - fusion (III-C): "at least lambda_N compatible hypotheses" (the sentence before
+    ///   the equation says "n > lambda_N"; we follow the two sentences that say "at least",
+    ///   also in the inter-keyframe check III-E);
+    /// - the prior interval [rho_0 - 2 sigma, rho_0 + 2 sigma] is clamped below at 0 (the
+    ///   point at infinity): a negative inverse depth is behind the camera;
+    /// - rho_0, sigma_rho0: the mean and standard deviation of the inverse depths of the
+    ///   map points the keyframe observes (at least 10);
+    /// - the N neighbours are the keyframe's N best covisible keyframes, whatever their
+    ///   baseline; a keyframe with fewer than lambda_N of them is not reconstructed;
+    /// - the best match along the segment is kept whatever its similarity error.
+    pub const PAPER_READINGS: &'static [&'static str] = &[
+        "fusion and inter-keyframe check: n >= lambda_N ('at least lambda_N')",
+        "prior interval rho_0 +- 2 sigma_rho0, lower bound clamped at 0 (infinity)",
+        "rho_0, sigma_rho0: mean and std of the observed map points' inverse depths (>= 10 points)",
+        "neighbours: the N best covisible keyframes, no baseline filter",
+        "best match kept whatever its similarity error",
+    ];
+
+    /// The settings in force: in paper mode every addition is switched off.
+    pub fn in_force(&self) -> SemiDenseConfig {
+        match self.mode {
+            SemiDenseMode::Tuned => self.clone(),
+            SemiDenseMode::Paper => SemiDenseConfig {
+                early_reject_after: 0,
+                min_baseline_ratio: 0.0,
+                max_similarity_error: f64::INFINITY,
+                consensus_window: false,
+                prior_cell_px: 0,
+                ..self.clone()
+            },
+        }
+    }
+
+    /// The settings in force that are not the paper's, as (name, value) for the report.
+    pub fn non_paper_settings(&self) -> Vec<(String, String)> {
+        let c = self.in_force();
+        let mut out = Vec::new();
+        let mut add = |on: bool, name: &str, value: String| {
+            if on {
+                out.push((name.to_string(), value));
+            }
+        };
+        add(
+            c.early_reject_after > 0,
+            "early_reject_after",
+            c.early_reject_after.to_string(),
+        );
+        add(
+            c.min_baseline_ratio > 0.0,
+            "min_baseline_ratio",
+            c.min_baseline_ratio.to_string(),
+        );
+        add(
+            c.max_similarity_error.is_finite(),
+            "max_similarity_error",
+            c.max_similarity_error.to_string(),
+        );
+        add(c.consensus_window, "consensus_window", "true".into());
+        add(
+            c.prior_cell_px > 0,
+            "prior_cell_px",
+            c.prior_cell_px.to_string(),
+        );
+        add(!c.inter_check, "inter_check", "false".into());
+        out
     }
 }
 

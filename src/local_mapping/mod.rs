@@ -5,6 +5,7 @@
 //! keyframe culling (90% of points seen by >= 3 others at the same or finer scale).
 
 mod fusion;
+pub use fusion::fuse_into;
 
 use nalgebra::{Matrix3, Vector2};
 

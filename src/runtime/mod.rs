@@ -10,5 +10,5 @@ pub use crate::threads::{
     ForegroundGate,
 };
 pub use crate::timing::{Percentiles, StageTimer};
-pub use report::{MapRecord, Report, TimingReport};
+pub use report::{MapRecord, Report, SemiDenseFinalReport, TimingReport};
 pub use system::{AtlasSummary, FrameResult, ReservedMemory, System, SystemStats};

@@ -133,5 +133,28 @@ pub struct Report {
     pub semidense_points: usize,
     /// Cloud accuracy by the evaluation protocol, when the source has ground-truth depth.
     pub semidense_accuracy: Option<crate::eval::CloudAccuracy>,
+    /// `[semidense] mode` ("paper" or "tuned"), the settings in force that are not the
+    /// paper's, and how the paper's text was read where it is ambiguous.
+    pub semidense_mode: Option<crate::config::SemiDenseMode>,
+    pub semidense_non_paper_settings: std::collections::BTreeMap<String, String>,
+    pub semidense_paper_readings: Vec<String>,
+    /// End-of-session reconstruction (`--semidense-final`): every keyframe of the final map
+    /// reconstructed after the final BA; `semidense.ply` is then that cloud and the online
+    /// one is `semidense_online.ply`.
+    pub semidense_final: Option<SemiDenseFinalReport>,
     pub timing_ms: TimingReport,
+}
+
+/// The end-of-session semi-dense reconstruction of a run.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct SemiDenseFinalReport {
+    pub keyframes: usize,
+    pub skipped_keyframes: usize,
+    pub points: usize,
+    /// Wall time of the whole reconstruction (both cores), seconds.
+    pub total_s: f64,
+    pub keyframe_ms: Percentiles,
+    /// Accuracy of the online cloud (`semidense_online.ply`) for comparison.
+    pub online_accuracy: Option<crate::eval::CloudAccuracy>,
+    pub online_points: usize,
 }

@@ -162,9 +162,20 @@ pub struct System {
     /// Scale-collapse watch on the keyframes ([`CollapseMonitor`]).
     collapse: CollapseMonitor,
     limits: SystemLimits,
+    /// What the end-of-session semi-dense reconstruction is built with, and its result
+    /// ([`reconstruct_semidense_final`](Self::reconstruct_semidense_final)).
+    final_semidense: FinalSemiDense,
     /// Consecutive frames initialisation has failed (for a warning).
     uninitialised_frames: usize,
     pub stats: SystemStats,
+}
+
+/// The end-of-session semi-dense reconstruction: its settings and, once run, its mapper.
+struct FinalSemiDense {
+    config: crate::config::SemiDenseConfig,
+    max_keyframes: usize,
+    max_features: usize,
+    mapper: Option<Box<SemiDenseMapper>>,
 }
 
 /// The configured numbers `System` itself applies (the stages keep their own).
@@ -299,6 +310,12 @@ impl System {
                 final_ba_iterations: config.map.final_ba_iterations,
                 new_map_when_lost: config.tracking.new_map_when_lost,
             },
+            final_semidense: FinalSemiDense {
+                config: config.semidense.clone(),
+                max_keyframes: config.map.max_keyframes,
+                max_features,
+                mapper: None,
+            },
             uninitialised_frames: 0,
             stats: SystemStats {
                 frames: 0,
@@ -386,6 +403,17 @@ impl System {
         let mut out = Vec::new();
         let primary = self.atlas().primary;
         if let Some(m) = self.semidense.mapper() {
+            m.cloud_of(&lock(&self.map), primary, &mut out);
+        }
+        out
+    }
+
+    /// The end-of-session cloud ([`reconstruct_semidense_final`](Self::reconstruct_semidense_final))
+    /// of the primary map; empty when it was not run.
+    pub fn semidense_final_cloud(&self) -> Vec<crate::geometry::CloudPoint> {
+        let mut out = Vec::new();
+        let primary = self.atlas().primary;
+        if let Some(m) = self.semidense_final() {
             m.cloud_of(&lock(&self.map), primary, &mut out);
         }
         out

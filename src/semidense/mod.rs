@@ -37,25 +37,39 @@ pub struct DepthPixel {
 }
 
 /// Median in-plane rotation (radians) from ORB angle pairs (degrees, reference then
-/// neighbour); `scratch` is reused. 0 when there are no pairs.
+/// neighbour); `scratch` is reused. 0 when there are no pairs. The differences are angles:
+/// they are unwrapped around their circular mean before the median, so a set straddling
+/// +-180 deg (a camera rolled upside down) gives a median near 180, not one of its ends.
 pub fn median_rotation(pairs: impl Iterator<Item = (f32, f32)>, scratch: &mut Vec<f32>) -> f64 {
     scratch.clear();
+    let (mut sin, mut cos) = (0.0f64, 0.0f64);
     for (a, b) in pairs {
-        let mut d = b - a;
-        while d > 180.0 {
-            d -= 360.0;
-        }
-        while d <= -180.0 {
-            d += 360.0;
-        }
+        let d = wrap_deg(b - a);
+        let r = (d as f64).to_radians();
+        (sin, cos) = (sin + r.sin(), cos + r.cos());
         scratch.push(d);
     }
     if scratch.is_empty() {
         return 0.0;
     }
+    let mean = sin.atan2(cos).to_degrees() as f32;
+    for d in scratch.iter_mut() {
+        *d = wrap_deg(*d - mean);
+    }
     let mid = scratch.len() / 2;
     let (_, m, _) = scratch.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
-    (*m as f64).to_radians()
+    (wrap_deg(*m + mean) as f64).to_radians()
+}
+
+/// An angle in degrees wrapped into (-180, 180].
+fn wrap_deg(mut d: f32) -> f32 {
+    while d > 180.0 {
+        d -= 360.0;
+    }
+    while d <= -180.0 {
+        d += 360.0;
+    }
+    d
 }
 
 /// The inverse-depth prior N(rho_0, sigma_rho0^2) of a keyframe from its map points' inverse

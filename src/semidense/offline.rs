@@ -1,8 +1,10 @@
 //! Offline densification from given poses (a refined trajectory or ground truth), as the
 //! paper suggests after full BA: every given keyframe gets ORB features; map points are
-//! triangulated between each keyframe and the previous N with the known poses, so shared
-//! points measure viewing overlap (the covisibility that picks neighbours), give the depth
-//! prior and the in-plane rotations; then the same [`SemiDenseMapper`] reconstructs them.
+//! triangulated between each keyframe and the previous N with the known poses, then matched
+//! by projection into every keyframe that sees them (so a keyframe revisiting a place shares
+//! points with the earlier ones): shared points measure viewing overlap (the covisibility
+//! that picks neighbours), give the depth prior and the in-plane rotations; then the same
+//! [`SemiDenseMapper`] reconstructs them.
 
 use std::sync::Mutex;
 
@@ -11,8 +13,8 @@ use crate::config::Config;
 use crate::features::{Features, OrbExtractor};
 use crate::geometry::CloudPoint;
 use crate::geometry::WorldFromCamera;
-use crate::local_mapping::LocalMapper;
-use crate::map::{KeyFrameId, Map, MapConfig};
+use crate::local_mapping::{fuse_into, LocalMapper};
+use crate::map::{KeyFrameId, Map, MapConfig, MapPointId};
 
 use super::SemiDenseMapper;
 
@@ -24,6 +26,8 @@ pub struct Densifier {
     keyframes: Vec<KeyFrameId>,
     mapper: SemiDenseMapper,
     n_neighbours: usize,
+    camera: PinholeRadtan,
+    scales: Vec<f64>,
 }
 
 impl Densifier {
@@ -59,6 +63,8 @@ impl Densifier {
                 max_features,
             ),
             n_neighbours: config.semidense.n_neighbours,
+            camera: *camera,
+            scales,
         }
     }
 
@@ -95,9 +101,15 @@ impl Densifier {
         true
     }
 
-    /// Updates every keyframe's covisibility (after the last keyframe is added).
+    /// Matches every point into every keyframe that sees it (projection, descriptor; ORB-
+    /// SLAM's duplicate fusion over all keyframes, not only those near in time), then
+    /// updates every keyframe's covisibility (after the last keyframe is added).
     pub fn connect(&mut self) {
         let map = self.map.get_mut().unwrap_or_else(|e| e.into_inner());
+        let points: Vec<MapPointId> = map.points().map(|(id, _)| id).collect();
+        for &k in &self.keyframes {
+            fuse_into(map, &self.camera, &self.scales, k, &points, 3.0);
+        }
         for &k in &self.keyframes {
             map.update_connections(k);
         }

@@ -65,6 +65,7 @@ pub struct KeyframeReconstructor {
 impl KeyframeReconstructor {
     /// Allocates every buffer for `width` x `height` keyframes.
     pub fn new(k: Intrinsics, width: usize, height: usize, config: &SemiDenseConfig) -> Self {
+        let config = &config.in_force();
         let n = config.n_neighbours.clamp(1, MAX_NEIGHBOURS);
         let pool = (config.threads > 1)
             .then(|| {

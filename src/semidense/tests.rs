@@ -222,3 +222,68 @@ fn early_rejection_keeps_points_and_accuracy() {
         assert!(e.3 <= f.3 + 0.002, "beyond 10%: {} vs {}", e.3, f.3);
     }
 }
+
+#[test]
+fn median_rotation_of_angles_straddling_180_degrees_is_near_180() {
+    let mut scratch = Vec::with_capacity(16);
+    // In-plane rotations of 170..190 deg (a camera rolled upside down): as wrapped
+    // differences they sit at both ends of (-180, 180].
+    let pairs = [170.0f32, 175.0, 178.0, 182.0, 185.0, 190.0, 181.0].map(|d| (10.0f32, 10.0 + d));
+    let m = super::median_rotation(pairs.into_iter(), &mut scratch).to_degrees();
+    let off = (m - 181.0).rem_euclid(360.0);
+    assert!(off.min(360.0 - off) < 0.01, "median {m:.2} deg, want 181");
+    // Away from the seam it is the plain median.
+    let pairs = [-5.0f32, 1.0, 2.0, 3.0, 40.0].map(|d| (100.0f32, 100.0 + d));
+    let m = super::median_rotation(pairs.into_iter(), &mut scratch).to_degrees();
+    assert!((m - 2.0).abs() < 1e-3, "{m}");
+    assert_eq!(
+        super::median_rotation(std::iter::empty(), &mut scratch),
+        0.0
+    );
+}
+
+#[test]
+fn paper_mode_switches_every_addition_off_and_says_so() {
+    use crate::config::SemiDenseMode;
+    let tuned = SemiDenseConfig::default();
+    let names: Vec<String> = tuned
+        .non_paper_settings()
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    for n in [
+        "early_reject_after",
+        "min_baseline_ratio",
+        "max_similarity_error",
+    ] {
+        assert!(
+            names.iter().any(|x| x == n),
+            "{n} not reported in {names:?}"
+        );
+    }
+    let paper = SemiDenseConfig {
+        mode: SemiDenseMode::Paper,
+        consensus_window: true,
+        prior_cell_px: 16,
+        ..SemiDenseConfig::default()
+    };
+    assert!(
+        paper.non_paper_settings().is_empty(),
+        "{:?}",
+        paper.non_paper_settings()
+    );
+    let f = paper.in_force();
+    assert_eq!(f.early_reject_after, 0);
+    assert_eq!(f.min_baseline_ratio, 0.0);
+    assert!(f.max_similarity_error.is_infinite());
+    assert!(!f.consensus_window);
+    assert_eq!(f.prior_cell_px, 0);
+    // The paper's own parameters are untouched.
+    assert_eq!((f.n_neighbours, f.lambda_n, f.sigma_i), (7, 3, 20.0));
+    let mode: SemiDenseMode = toml::from_str::<toml::Value>("m = \"paper\"")
+        .ok()
+        .and_then(|v| v.get("m").cloned())
+        .and_then(|m| m.try_into().ok())
+        .unwrap();
+    assert_eq!(mode, SemiDenseMode::Paper);
+}

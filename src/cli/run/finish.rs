@@ -76,13 +76,29 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
     }
 
     threads_ok &= r.system.finish_semidense(interrupted);
+    let final_started = Instant::now();
+    let run_final = s.args.semidense_final && !interrupted && threads_ok;
+    if run_final {
+        note!("sdslam: end-of-session semi-dense reconstruction of every keyframe");
+        r.system.reconstruct_semidense_final();
+    }
+    let final_s = final_started.elapsed().as_secs_f64();
     r.system.release_working_memory();
     if !threads_ok {
         r.report.stopped_early.get_or_insert_with(|| {
             "a worker thread panicked; outputs written from the map as it was".into()
         });
     }
-    let cloud = r.system.semidense_cloud();
+    let online = r.system.semidense_cloud();
+    let final_cloud = r
+        .system
+        .semidense_final()
+        .map(|_| r.system.semidense_final_cloud());
+    if final_cloud.is_some() {
+        s.outputs
+            .write("semidense_online.ply", |p| write_ply(p, &online));
+    }
+    let cloud = final_cloud.unwrap_or(online.clone());
     #[cfg(feature = "rerun")]
     if let Some(v) = &r.viewer {
         let t = keyframes.last().map_or(0.0, |k| k.timestamp);
@@ -91,9 +107,32 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
     }
     s.outputs.write("semidense.ply", |p| write_ply(p, &cloud));
     r.report.semidense_points = cloud.len();
+    if s.config.semidense.enabled {
+        let c = &s.config.semidense;
+        r.report.semidense_mode = Some(c.mode);
+        r.report.semidense_non_paper_settings = c.non_paper_settings().into_iter().collect();
+        r.report.semidense_paper_readings = sdslam::config::SemiDenseConfig::PAPER_READINGS
+            .iter()
+            .map(|x| x.to_string())
+            .collect();
+    }
     if let Some(sd) = r.system.semidense() {
         fill_semidense_report(&mut r.report, sd, finishing);
-        semidense_extras(s, &mut r.report, sd, &cloud, &keyframes);
+        note_cut(sd);
+        let cloud_sd = r.system.semidense_final().unwrap_or(sd);
+        write_depth_maps(s, cloud_sd);
+        r.report.semidense_accuracy = cloud_accuracy(s, cloud_sd, &cloud, &keyframes);
+        if let Some(fin) = r.system.semidense_final() {
+            r.report.semidense_final = Some(sdslam::runtime::SemiDenseFinalReport {
+                keyframes: fin.stats.keyframes_reconstructed,
+                skipped_keyframes: fin.stats.keyframes_skipped,
+                points: cloud.len(),
+                total_s: final_s,
+                keyframe_ms: fin.t_keyframe.percentiles(),
+                online_accuracy: cloud_accuracy(s, sd, &online, &keyframes),
+                online_points: online.len(),
+            });
+        }
     }
     Finished {
         keyframes,
@@ -253,47 +292,54 @@ fn fill_semidense_report(report: &mut Report, sd: &SemiDenseMapper, finishing: I
     report.timing_ms.semidense_inter = sd.t_inter.percentiles();
 }
 
-/// Depth maps on request, and the cloud's accuracy where there is ground-truth depth.
-fn semidense_extras(
-    s: &mut Session,
-    report: &mut Report,
-    sd: &SemiDenseMapper,
-    cloud: &[CloudPoint],
-    keyframes: &[TimedPose],
-) {
+/// Tells how much of the semi-dense backlog an interrupt cut.
+fn note_cut(sd: &SemiDenseMapper) {
     if sd.stats.skipped_cut > 0 {
         note!(
             "sdslam: interrupted: {} keyframes of the semi-dense backlog were cut (not reconstructed, or not verified by the inter-keyframe check; semidense_skipped_cut in report.json)",
             sd.stats.skipped_cut
         );
     }
-    let (width, height) = (s.info.width, s.info.height);
+}
+
+/// The depth maps of `sd`'s keyframes, on request.
+fn write_depth_maps(s: &mut Session, sd: &SemiDenseMapper) {
     if s.args.depth_maps {
+        let (width, height) = (s.info.width, s.info.height);
         let out = s.args.out.clone();
         s.outputs.write("depth", |_| {
             crate::densify::write_depth_maps(&out, sd, width, height)
         });
     }
+}
+
+/// The accuracy of `cloud` (made by `sd`) where there is ground-truth depth.
+fn cloud_accuracy(
+    s: &mut Session,
+    sd: &SemiDenseMapper,
+    cloud: &[CloudPoint],
+    keyframes: &[TimedPose],
+) -> Option<sdslam::eval::CloudAccuracy> {
+    let (width, height) = (s.info.width, s.info.height);
     let (Some(gt), false) = (&s.groundtruth, cloud.is_empty()) else {
-        return;
+        return None;
     };
     // The evaluation protocol's alignment: keyframe centres plus axis points (positions alone
     // leave the rotation about a near-straight path free).
-    let Some(alignment) = sdslam::eval::pose_alignment(gt, keyframes, 0.02) else {
-        return;
-    };
+    let alignment = sdslam::eval::pose_alignment(gt, keyframes, 0.02)?;
     let stamps: Vec<f64> = sd.entries().iter().map(|e| e.timestamp).collect();
     match s.depth_truth.load(&stamps, gt, width, height) {
-        Ok(frames) if !frames.is_empty() => {
-            report.semidense_accuracy = Some(sdslam::eval::cloud_accuracy(
-                cloud,
-                &alignment,
-                &s.calib.camera,
-                &frames,
-            ));
+        Ok(frames) if !frames.is_empty() => Some(sdslam::eval::cloud_accuracy(
+            cloud,
+            &alignment,
+            &s.calib.camera,
+            &frames,
+        )),
+        Ok(_) => None,
+        Err(e) => {
+            note!("warning: semi-dense accuracy not evaluated: {e}");
+            None
         }
-        Ok(_) => {}
-        Err(e) => note!("warning: semi-dense accuracy not evaluated: {e}"),
     }
 }
 
@@ -309,6 +355,18 @@ fn note_summary(s: &Session, r: &Running) {
             acc.within_2pct * 100.0,
             acc.outliers_10pct * 100.0
         );
+    }
+    if let Some(f) = &report.semidense_final {
+        if let Some(acc) = &f.online_accuracy {
+            note!(
+                "sdslam: semi-dense online cloud (semidense_online.ply) {} points: median {}, {:.2}% off by > 10%; end-of-session reconstruction of {} keyframes took {:.1} s",
+                acc.points,
+                crate::percent(acc.median_relative_error),
+                acc.outliers_10pct * 100.0,
+                f.keyframes,
+                f.total_s
+            );
+        }
     }
     note!(
         "sdslam: {} frames ({} skipped), {} tracked{}, {} keyframes, {} points{}, {:.1} s; state {:?}; outputs in {}",

@@ -7,12 +7,13 @@ use std::path::{Path, PathBuf};
 use sdslam::{Error, Result};
 
 /// Every file `sdslam run` writes into its output folder (plus `depth/*.png`).
-pub const RUN_OUTPUTS: [&str; 8] = [
+pub const RUN_OUTPUTS: [&str; 9] = [
     "groundtruth.txt",
     "trajectory.txt",
     "keyframes.txt",
     "report.json",
     "semidense.ply",
+    "semidense_online.ply",
     "trajectory.png",
     "cloud.png",
     "timing.png",

@@ -6,7 +6,7 @@
 //! keyframe allocates nothing.
 
 mod output;
-use output::{anchor_scale, pose_from_anchors};
+use output::{pose_and_scale_now, reanchor, Anchor};
 
 use std::collections::VecDeque;
 use std::sync::Mutex;
@@ -19,7 +19,7 @@ use super::{
 use crate::config::SemiDenseConfig;
 use crate::geometry::CloudPoint;
 use crate::geometry::{CameraFromWorld, Se3};
-use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
 use crate::timing::StageTimer;
 
 /// A reconstructed keyframe: its pixels live in the mapper's arena at `start..start + len`.
@@ -35,8 +35,16 @@ pub struct KeyframeDepth {
     /// Map points seen by the keyframe with their camera-frame positions at reconstruction:
     /// the anchors of its depth scale. A Sim3 loop correction or global BA rescales the map
     /// around a keyframe; the ratio of then/now inverse depths of these points carries the
-    /// depths along, and once the keyframe is culled their Sim3 gives its pose.
-    anchors: heapless::Vec<(MapPointId, [f32; 3]), MAX_ANCHORS>,
+    /// depths along, and once the keyframe is culled their Sim3 gives its pose. Followed
+    /// through fusion by keypoint, renewed while the keyframe lives (`output::reanchor`).
+    anchors: heapless::Vec<Anchor, MAX_ANCHORS>,
+    /// A live neighbour with an entry, this keyframe's pose relative to it and its depth
+    /// scale, when both were last read: the pose of this keyframe once culled with its
+    /// anchors gone (`output::pose_and_scale_now`).
+    relative_to: Option<(KeyFrameId, Se3, f32)>,
+    /// Serials of `neighbours` (a neighbour newer than every keyframe received so far is
+    /// not reconstructed yet even though it is not pending).
+    neighbour_serials: heapless::Vec<u64, MAX_NEIGHBOURS>,
     /// Depth scale when the pose was last read (the median then/now inverse-depth ratio of its anchor points).
     pub scale: f32,
     /// The inter-keyframe check has run.
@@ -96,6 +104,10 @@ pub struct SemiDenseMapper {
     reconstructor: KeyframeReconstructor,
     inter: InterChecker,
     pending: VecDeque<KeyFrameId>,
+    /// Serial of the newest keyframe received: keyframes come in creation order, so a
+    /// neighbour with a larger serial has not been received (its message may still be in
+    /// the channel) and is not reconstructed yet.
+    received_serial: u64,
     entries: Vec<KeyframeDepth>,
     arena: Vec<CloudPixel>,
     // Staging copies taken under the map lock, processed without it.
@@ -134,6 +146,7 @@ impl SemiDenseMapper {
         max_keyframes: usize,
         max_features: usize,
     ) -> Self {
+        let config = &config.in_force();
         let reconstructor = KeyframeReconstructor::new(k, width, height, config);
         let n = reconstructor.max_neighbours();
         let timer = || StageTimer::with_capacity(max_keyframes.max(16));
@@ -142,6 +155,7 @@ impl SemiDenseMapper {
             inter: InterChecker::new(k, width, height, n),
             reconstructor,
             pending: VecDeque::with_capacity(config.keyframe_delay + 2),
+            received_serial: 0,
             entries: Vec::with_capacity(max_keyframes),
             arena: Vec::with_capacity(config.max_points),
             gray_ref: Vec::with_capacity(width * height),
@@ -173,12 +187,32 @@ impl SemiDenseMapper {
     pub fn reset(&mut self) {
         self.reconstructor.forget();
         self.pending.clear();
+        self.received_serial = 0;
         self.entries.clear();
         self.arena.clear();
     }
 
+    /// Notes a keyframe as received (its serial raises the watermark of
+    /// [`neighbours_done`](Self::neighbours_done)).
+    fn receive(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
+        let m = map.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(k) = m.keyframe(kf) {
+            self.received_serial = self.received_serial.max(k.serial);
+        }
+    }
+
+    /// Every neighbour of `e` is reconstructed or never will be: received and no longer
+    /// pending.
+    fn neighbours_done(&self, e: &KeyframeDepth) -> bool {
+        e.neighbours
+            .iter()
+            .zip(&e.neighbour_serials)
+            .all(|(n, &s)| s <= self.received_serial && !self.pending.contains(n))
+    }
+
     /// A keyframe was made. The keyframe `keyframe_delay` places earlier is reconstructed now.
     pub fn on_keyframe(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
+        self.receive(map, kf);
         self.pending.push_back(kf);
         while self.pending.len() > self.config.keyframe_delay {
             if let Some(k) = self.pending.pop_front() {
@@ -198,6 +232,16 @@ impl SemiDenseMapper {
         self.check_ready(map, true);
     }
 
+    /// Reconstructs `keyframes` in their order and checks each against all its neighbours:
+    /// the end-of-session reconstruction (every keyframe is there at once).
+    pub fn reconstruct_all(&mut self, map: &Mutex<Map>, keyframes: &[KeyFrameId]) {
+        for &k in keyframes {
+            self.receive(map, k);
+            self.pending.push_back(k);
+        }
+        self.flush(map);
+    }
+
     /// End of an interrupted run: drops the keyframes still waiting for reconstruction
     /// (counted as cut) and checks the reconstructed ones with the neighbours they have, so
     /// the run ends within about one keyframe's time. Returns how many were cut.
@@ -205,9 +249,9 @@ impl SemiDenseMapper {
         // Keyframes with a cut neighbour cannot get the inter-keyframe check they were
         // reconstructed for; unchecked, they stay out of the cloud (and are counted as cut).
         let mut unverifiable = 0;
-        for e in self.entries.iter_mut().filter(|e| !e.checked) {
-            if e.neighbours.iter().any(|n| self.pending.contains(n)) {
-                e.unverifiable = true;
+        for e in 0..self.entries.len() {
+            if !self.entries[e].checked && !self.neighbours_done(&self.entries[e]) {
+                self.entries[e].unverifiable = true;
                 unverifiable += 1;
             }
         }
@@ -301,15 +345,18 @@ impl SemiDenseMapper {
                 rgb,
             });
         }
-        let mut nb = heapless::Vec::new();
+        let (mut nb, mut nb_serials) = (heapless::Vec::new(), heapless::Vec::new());
         for n in &neighbours {
             let _ = nb.push(n.id);
+            let _ = nb_serials.push(n.serial);
         }
         self.entries.push(KeyframeDepth {
             keyframe: kf,
             timestamp,
             t_cw,
             neighbours: nb,
+            neighbour_serials: nb_serials,
+            relative_to: None,
             start,
             len: self.arena.len() - start,
             anchors,
@@ -347,7 +394,7 @@ impl SemiDenseMapper {
         bool,
         heapless::Vec<Neighbour, MAX_NEIGHBOURS>,
         (f64, f64),
-        heapless::Vec<(MapPointId, [f32; 3]), MAX_ANCHORS>,
+        heapless::Vec<Anchor, MAX_ANCHORS>,
     )> {
         let map = map.lock().unwrap_or_else(|e| e.into_inner());
         let k = map.keyframe(kf)?;
@@ -376,7 +423,11 @@ impl SemiDenseMapper {
                 self.prior.add(kp.ux, kp.uy, rho);
             }
             if n % stride == 0 {
-                let _ = anchors.push((mp, [x.x as f32, x.y as f32, x.z as f32]));
+                let _ = anchors.push(Anchor {
+                    point: mp,
+                    keypoint: i as u32,
+                    x_then: [x.x as f32, x.y as f32, x.z as f32],
+                });
             }
         }
         let rho_range = prior_range(&self.scratch_f32)?;
@@ -453,11 +504,7 @@ impl SemiDenseMapper {
             if self.entries[e].checked {
                 continue;
             }
-            let ready = force
-                || self.entries[e]
-                    .neighbours
-                    .iter()
-                    .all(|n| !self.pending.contains(n));
+            let ready = force || self.neighbours_done(&self.entries[e]);
             if ready {
                 self.check(map, e);
             }
@@ -468,18 +515,30 @@ impl SemiDenseMapper {
     /// move keyframes after reconstruction).
     fn refresh_poses(&mut self, map: &Map, e: usize) {
         let mut scratch = std::mem::take(&mut self.scratch_f32);
-        let mut refresh = |d: &mut KeyframeDepth| {
-            if let Some(k) = map.keyframe(d.keyframe) {
-                d.t_cw = k.t_cw;
-                d.scale = anchor_scale(map, d, &mut scratch);
-            } else if let Some((t_cw, scale)) = pose_from_anchors(map, d) {
-                (d.t_cw, d.scale) = (t_cw, scale);
+        let mut ids: heapless::Vec<usize, { MAX_NEIGHBOURS + 1 }> = heapless::Vec::new();
+        let _ = ids.push(e);
+        for n in &self.entries[e].neighbours {
+            if let Some(d) = self.entries.iter().position(|d| d.keyframe == *n) {
+                let _ = ids.push(d);
             }
-        };
-        refresh(&mut self.entries[e]);
-        for n in self.entries[e].neighbours.clone() {
-            if let Some(d) = self.entries.iter_mut().find(|d| d.keyframe == n) {
-                refresh(d);
+        }
+        for &i in &ids {
+            let (t_cw, scale) =
+                pose_and_scale_now(map, &self.entries[i], &self.entries, &mut scratch);
+            let d = &mut self.entries[i];
+            (d.t_cw, d.scale) = (t_cw, scale);
+            reanchor(map, d, &t_cw, scale);
+        }
+        // A live neighbour to follow once this keyframe is culled.
+        if map.keyframe(self.entries[e].keyframe).is_some() {
+            let me = &self.entries[e];
+            let via = ids[1..]
+                .iter()
+                .map(|&i| &self.entries[i])
+                .find(|d| map.keyframe(d.keyframe).is_some());
+            let rel = via.map(|d| (d.keyframe, me.t_cw.0 * d.t_cw.0.inverse(), d.scale));
+            if rel.is_some() {
+                self.entries[e].relative_to = rel;
             }
         }
         self.scratch_f32 = scratch;
@@ -522,13 +581,18 @@ impl SemiDenseMapper {
         let (start, len, scale) = (me.start, me.len, me.scale);
         let lambda_n = self.config.lambda_n;
         let inter = &self.inter;
+        let inter_check = self.config.inter_check;
         // Pixels are independent: checked in the worker pool, a few rows' worth per task.
         self.reconstructor
             .par_for_each(&mut self.arena[start..start + len], 2048, |p| {
                 // Checked in today's scale, stored in the reconstruction's (as `raw`).
-                p.rho = inter
-                    .check(p.raw.idx, p.raw.rho / scale, lambda_n)
-                    .map_or(0.0, |rho| rho * scale);
+                p.rho = if inter_check {
+                    inter
+                        .check(p.raw.idx, p.raw.rho / scale, lambda_n)
+                        .map_or(0.0, |rho| rho * scale)
+                } else {
+                    p.raw.rho
+                };
             });
         let dt = t0.elapsed();
         self.stats.busy_s += dt.as_secs_f64();
@@ -539,3 +603,6 @@ impl SemiDenseMapper {
         self.t_keyframe.record_ms(me.elapsed_ms);
     }
 }
+
+#[cfg(test)]
+mod tests;
