@@ -171,6 +171,30 @@ fn an_exposure_step_is_tracked_through() {
     });
 }
 
+/// Every surface a repetitive pattern (fine noise, stripes, tiles, rows of glyphs): ORB
+/// matches are ambiguous between repeats, so matching must hold to the predicted positions.
+#[test]
+fn repetitive_textures_are_tracked() {
+    check(&Bar {
+        scene: "repetitive",
+        first_pose: 0,
+        min_tracked: 0.97,
+        max_kf_ate_of_path: 0.01,
+    });
+}
+
+/// Three boxes move through the scene (across the desk, along the floor, up and down a
+/// wall): their features are outliers to the static map.
+#[test]
+fn moving_objects_do_not_pull_the_pose() {
+    check(&Bar {
+        scene: "moving-objects",
+        first_pose: 0,
+        min_tracked: 0.97,
+        max_kf_ate_of_path: 0.01,
+    });
+}
+
 /// What a run with a blackout gave: report.json, ground truth, trajectory, keyframes and the
 /// path length.
 struct BlackoutRun {

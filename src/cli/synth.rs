@@ -20,7 +20,8 @@ pub struct SynthArgs {
     #[arg(long, default_value_t = 300)]
     frames: usize,
     /// Scene and motion: desk (the default orbit), rotation, outward-loop (weakly textured
-    /// walls), forward, fast-blur, exposure-step, blackout. `sdslam run synthetic:NAME` runs
+    /// walls), forward, fast-blur, exposure-step, blackout, repetitive (patterned surfaces),
+    /// moving-objects. `sdslam run synthetic:NAME` runs
     /// the same scene without writing it.
     #[arg(long, default_value = "desk", value_parser = parse_scene)]
     scene: Scenario,

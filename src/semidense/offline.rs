@@ -101,18 +101,26 @@ impl Densifier {
         true
     }
 
+    /// Updates every keyframe's covisibility from the points triangulated so far (each
+    /// keyframe with the previous N: neighbours near in time).
+    pub fn connect(&mut self) {
+        let map = self.map.get_mut().unwrap_or_else(|e| e.into_inner());
+        for &k in &self.keyframes {
+            map.update_connections(k);
+        }
+    }
+
     /// Matches every point into every keyframe that sees it (projection, descriptor; ORB-
     /// SLAM's duplicate fusion over all keyframes, not only those near in time), then
-    /// updates every keyframe's covisibility (after the last keyframe is added).
-    pub fn connect(&mut self) {
+    /// [`connect`](Self::connect)s: a keyframe revisiting a place becomes a neighbour of the
+    /// earlier ones.
+    pub fn connect_by_covisibility(&mut self) {
         let map = self.map.get_mut().unwrap_or_else(|e| e.into_inner());
         let points: Vec<MapPointId> = map.points().map(|(id, _)| id).collect();
         for &k in &self.keyframes {
             fuse_into(map, &self.camera, &self.scales, k, &points, 3.0);
         }
-        for &k in &self.keyframes {
-            map.update_connections(k);
-        }
+        self.connect();
     }
 
     /// The keyframe map built from the given poses.
@@ -126,7 +134,7 @@ impl Densifier {
 
     /// Reconstructs every keyframe (neighbours by covisibility over all of them).
     pub fn finish(&mut self) -> &SemiDenseMapper {
-        self.connect();
+        self.connect_by_covisibility();
         for &k in &self.keyframes {
             self.mapper.on_keyframe(&self.map, k);
         }

@@ -90,7 +90,10 @@ pub struct SyntheticSequence {
 
 impl SyntheticSequence {
     pub fn new(config: SyntheticConfig) -> Self {
-        let scene = Scene::room(config.seed, config.scenario.weak_walls());
+        let mut scene = Scene::room_with(config.seed, config.scenario.surfaces());
+        if config.scenario.moving_objects() {
+            scene.add_movers(config.seed);
+        }
         let renderer = Renderer::new(scene, config.camera(), config.noise_sigma, config.seed);
         let path = CameraPath::new(config.scenario, config.frames);
         let name = match config.scenario {
@@ -159,8 +162,13 @@ impl SyntheticSequence {
     /// pose (depth from the pose itself), then the scenario's gain.
     fn render_scenario(&self, i: usize, out: &mut Frame, depth: Option<&mut [f32]>) {
         let s = self.config.scenario;
-        self.renderer
-            .render(&self.path.pose(i as f64), i as u64, &mut out.rgb, depth);
+        self.renderer.render_at(
+            &self.path.pose(i as f64),
+            i as f64,
+            i as u64,
+            &mut out.rgb,
+            depth,
+        );
         let n = s.blur_samples();
         if n > 1 {
             // The shutter open over the second half of the frame interval, centred on the pose.
@@ -169,8 +177,13 @@ impl SyntheticSequence {
             for k in (0..n).filter(|&k| 2 * k + 1 != n) {
                 let dt = 0.5 * (k as f64 / (n - 1) as f64 - 0.5);
                 let pose = self.path.pose(i as f64 + dt);
-                self.renderer
-                    .render(&pose, i as u64 * 7 + k as u64, &mut sample, None);
+                self.renderer.render_at(
+                    &pose,
+                    i as f64 + dt,
+                    i as u64 * 7 + k as u64,
+                    &mut sample,
+                    None,
+                );
                 for (a, &b) in sum.iter_mut().zip(&sample) {
                     *a += b as f32;
                 }

@@ -44,10 +44,24 @@ impl Renderer {
     }
 
     /// Renders the view from `t_wc` into `rgb` (w*h*3); with `depth` (w*h) also the planar
-    /// depth of each pixel centre (metres, 0 = no surface). `frame` seeds the noise.
+    /// depth of each pixel centre (metres, 0 = no surface). `frame` seeds the noise; moving
+    /// objects are where they are at frame 0.
     pub fn render(
         &self,
         t_wc: &WorldFromCamera,
+        frame: u64,
+        rgb: &mut [u8],
+        depth: Option<&mut [f32]>,
+    ) {
+        self.render_at(t_wc, 0.0, frame, rgb, depth);
+    }
+
+    /// [`render`](Self::render) with moving objects where they are at (fractional) frame
+    /// `time`.
+    pub fn render_at(
+        &self,
+        t_wc: &WorldFromCamera,
+        time: f64,
         frame: u64,
         rgb: &mut [u8],
         depth: Option<&mut [f32]>,
@@ -67,7 +81,7 @@ impl Renderer {
         centre.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             for (x, c) in row.iter_mut().enumerate() {
                 let (d, to_planar) = ray(x as f64, y as f64);
-                *c = match self.scene.cast(&o, &d) {
+                *c = match self.scene.cast_at(&o, &d, time) {
                     Some(hit) => (hit.rgb, hit.id, (hit.t * to_planar) as f32),
                     None => ([0.0; 3], NO_HIT, 0.0),
                 };
@@ -90,7 +104,7 @@ impl Renderer {
                     acc = [0.0; 3];
                     for (dx, dy) in SAMPLES {
                         let (d, _) = ray(x as f64 + dx, y as f64 + dy);
-                        if let Some(hit) = self.scene.cast(&o, &d) {
+                        if let Some(hit) = self.scene.cast_at(&o, &d, time) {
                             for (a, c) in acc.iter_mut().zip(hit.rgb) {
                                 *a += c / SAMPLES.len() as f32;
                             }

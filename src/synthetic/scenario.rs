@@ -32,10 +32,17 @@ pub enum Scenario {
     /// The outward loop with 20 black frames a third of the way round, when the camera looks
     /// at walls it has not mapped yet.
     Blackout,
+    /// The orbit in a room whose surfaces carry repetitive patterns (per surface one of
+    /// fine noise, stripes, tiles, rows of glyphs): many similar pixels along an epipolar
+    /// segment.
+    Repetitive,
+    /// The orbit with three boxes moving through the scene (across the desk, along the floor,
+    /// up and down in front of a wall): points on them are not static.
+    MovingObjects,
 }
 
 impl Scenario {
-    pub const ALL: [Scenario; 7] = [
+    pub const ALL: [Scenario; 9] = [
         Scenario::Desk,
         Scenario::Rotation,
         Scenario::OutwardLoop,
@@ -43,6 +50,8 @@ impl Scenario {
         Scenario::FastBlur,
         Scenario::ExposureStep,
         Scenario::Blackout,
+        Scenario::Repetitive,
+        Scenario::MovingObjects,
     ];
 
     pub fn name(self) -> &'static str {
@@ -54,6 +63,8 @@ impl Scenario {
             Scenario::FastBlur => "fast-blur",
             Scenario::ExposureStep => "exposure-step",
             Scenario::Blackout => "blackout",
+            Scenario::Repetitive => "repetitive",
+            Scenario::MovingObjects => "moving-objects",
         }
     }
 
@@ -71,9 +82,19 @@ impl Scenario {
             })
     }
 
-    /// Whether the room's walls are weakly textured.
-    pub fn weak_walls(self) -> bool {
-        matches!(self, Scenario::OutwardLoop | Scenario::Blackout)
+    /// How the room's surfaces are textured.
+    pub fn surfaces(self) -> super::scene::Surfaces {
+        use super::scene::Surfaces;
+        match self {
+            Scenario::OutwardLoop | Scenario::Blackout => Surfaces::WeakWalls,
+            Scenario::Repetitive => Surfaces::Repetitive,
+            _ => Surfaces::Shapes,
+        }
+    }
+
+    /// Whether objects move through the scene.
+    pub fn moving_objects(self) -> bool {
+        self == Scenario::MovingObjects
     }
 
     /// Renders averaged along the motion for frame blur (1 = sharp).
@@ -123,7 +144,11 @@ impl CameraPath {
     pub fn pose(&self, i: f64) -> WorldFromCamera {
         let u = i / self.frames as f64;
         match self.scenario {
-            Scenario::Desk | Scenario::ExposureStep | Scenario::FastBlur => self.orbit.pose_at(i),
+            Scenario::Desk
+            | Scenario::ExposureStep
+            | Scenario::FastBlur
+            | Scenario::Repetitive
+            | Scenario::MovingObjects => self.orbit.pose_at(i),
             Scenario::Rotation => {
                 // Ease in: the first frames barely move, as a robot starting to turn.
                 let ease = (u * 8.0).min(1.0);

@@ -3,7 +3,7 @@
 
 use nalgebra::{Rotation3, Vector3};
 
-use super::texture::{Rng, Texture};
+use super::texture::{Pattern, Rng, Texture};
 
 /// A textured rectangle `origin + a * eu + b * ev`, a, b in [0, 1], eu ⟂ ev.
 pub struct Quad {
@@ -34,10 +34,42 @@ pub struct Hit {
     pub id: u32,
 }
 
+/// How the room's surfaces are textured.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Surfaces {
+    /// Random shapes on every surface (the default room).
+    #[default]
+    Shapes,
+    /// The walls faint and sparse (a painted room), the rest as `Shapes`.
+    WeakWalls,
+    /// Every surface a repetitive [`Pattern`], cycling through them.
+    Repetitive,
+}
+
+/// An object moving back and forth between two offsets (smoothly, cosine-eased).
+struct Mover {
+    object: Object,
+    a: Vector3<f64>,
+    b: Vector3<f64>,
+    /// Frames per back-and-forth, and the phase at frame 0 (in periods).
+    period: f64,
+    phase: f64,
+}
+
+impl Mover {
+    fn offset(&self, time: f64) -> Vector3<f64> {
+        let s = 0.5 - 0.5 * (std::f64::consts::TAU * (time / self.period + self.phase)).cos();
+        self.a + (self.b - self.a) * s
+    }
+}
+
 /// The scene: objects and their textures.
 pub struct Scene {
     objects: Vec<Object>,
+    movers: Vec<Mover>,
     textures: Vec<Texture>,
+    /// `Some(n)`: new surfaces get repetitive patterns, the n-th of [`Pattern::ALL`] next.
+    patterns: Option<usize>,
 }
 
 const LIGHT: [f64; 3] = [0.35, 0.25, 0.9];
@@ -46,7 +78,9 @@ impl Scene {
     fn new() -> Self {
         Scene {
             objects: Vec::new(),
+            movers: Vec::new(),
             textures: Vec::new(),
+            patterns: None,
         }
     }
 
@@ -65,8 +99,15 @@ impl Scene {
     ) {
         let tw = ((eu.norm() * texels_per_m).ceil() as usize).clamp(16, 2048);
         let th = ((ev.norm() * texels_per_m).ceil() as usize).clamp(16, 2048);
-        self.textures
-            .push(Texture::generate(tw, th, rng.next_u64(), density, contrast));
+        let seed = rng.next_u64();
+        let texture = match self.patterns.as_mut() {
+            Some(n) => {
+                *n += 1;
+                Texture::pattern(tw, th, seed, Pattern::ALL[(*n - 1) % Pattern::ALL.len()])
+            }
+            None => Texture::generate(tw, th, seed, density, contrast),
+        };
+        self.textures.push(texture);
         let normal = eu.cross(&ev).normalize();
         let l = Vector3::from(LIGHT).normalize();
         let shade = (0.55 + 0.45 * normal.dot(&l).max(0.0)) as f32;
@@ -83,6 +124,12 @@ impl Scene {
     }
 
     fn push(&mut self, quads: Vec<Quad>) {
+        let object = Self::bounded(quads);
+        self.objects.push(object);
+    }
+
+    /// The quads behind their bounding box.
+    fn bounded(quads: Vec<Quad>) -> Object {
         let mut min = Vector3::repeat(f64::INFINITY);
         let mut max = Vector3::repeat(f64::NEG_INFINITY);
         for q in &quads {
@@ -97,11 +144,11 @@ impl Scene {
             }
         }
         let pad = Vector3::repeat(1e-6);
-        self.objects.push(Object {
+        Object {
             min: min - pad,
             max: max + pad,
             quads,
-        });
+        }
     }
 
     /// A box standing on z = `z0`, centred at (cx, cy), rotated by `yaw` about z; outward faces
@@ -134,6 +181,56 @@ impl Scene {
         self.push(q);
     }
 
+    /// A textured box of `size` standing on the origin that moves between offsets `a` and
+    /// `b` (see [`Mover`]).
+    fn add_moving_box(
+        &mut self,
+        rng: &mut Rng,
+        size: [f64; 3],
+        (a, b): (Vector3<f64>, Vector3<f64>),
+        period: f64,
+        phase: f64,
+    ) {
+        self.add_box(rng, [0.0, 0.0, 0.0], size, 0.0, 260.0, 1.5, 0.8);
+        if let Some(object) = self.objects.pop() {
+            self.movers.push(Mover {
+                object,
+                a,
+                b,
+                period,
+                phase,
+            });
+        }
+    }
+
+    /// Three boxes moving through the room (`Scenario::MovingObjects`): one across the desk
+    /// top, one along the floor behind it, one up and down in front of a wall.
+    pub fn add_movers(&mut self, seed: u64) {
+        let mut rng = Rng::new(seed ^ 0x4d4f_5645);
+        let v = Vector3::new;
+        self.add_moving_box(
+            &mut rng,
+            [0.22, 0.22, 0.22],
+            (v(-0.55, -0.05, 0.75), v(0.55, -0.05, 0.75)),
+            90.0,
+            0.0,
+        );
+        self.add_moving_box(
+            &mut rng,
+            [0.35, 0.35, 0.6],
+            (v(-2.4, -2.0, 0.0), v(-2.4, 2.0, 0.0)),
+            150.0,
+            0.25,
+        );
+        self.add_moving_box(
+            &mut rng,
+            [0.3, 0.3, 0.3],
+            (v(0.3, 2.6, 0.3), v(0.3, 2.6, 1.8)),
+            100.0,
+            0.5,
+        );
+    }
+
     /// The built-in desk scene (z up, metres): a 7 x 7 x 3 m room, a desk at the centre with
     /// boxes and standing boards on it, cabinets and posters further away.
     pub fn desk(seed: u64) -> Scene {
@@ -143,8 +240,22 @@ impl Scene {
     /// The desk scene; with `weak_walls` the four walls carry a faint, sparse texture (a
     /// painted room), so a camera looking outward sees few features.
     pub fn room(seed: u64, weak_walls: bool) -> Scene {
+        let surfaces = if weak_walls {
+            Surfaces::WeakWalls
+        } else {
+            Surfaces::Shapes
+        };
+        Scene::room_with(seed, surfaces)
+    }
+
+    /// The desk scene with its surfaces textured as `surfaces` says.
+    pub fn room_with(seed: u64, surfaces: Surfaces) -> Scene {
+        let weak_walls = surfaces == Surfaces::WeakWalls;
         let (wall_density, wall_contrast) = if weak_walls { (0.35, 0.12) } else { (1.5, 0.8) };
         let mut s = Scene::new();
+        if surfaces == Surfaces::Repetitive {
+            s.patterns = Some(0);
+        }
         let mut rng = Rng::new(seed);
         let (hx, hy, hz) = (3.5, 3.5, 3.0);
         // Room: floor (weakly textured), walls with posters' worth of texture, ceiling.
@@ -275,47 +386,72 @@ impl Scene {
         s
     }
 
-    /// Nearest hit of the ray `o + t d` (`d` unit) with t > `t_min`.
+    /// Nearest hit of the ray `o + t d` (`d` unit), moving objects where they are at frame 0.
     pub fn cast(&self, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<Hit> {
+        self.cast_at(o, d, 0.0)
+    }
+
+    /// Nearest hit of the ray `o + t d` (`d` unit), moving objects where they are at
+    /// (fractional) frame `time`.
+    pub fn cast_at(&self, o: &Vector3<f64>, d: &Vector3<f64>, time: f64) -> Option<Hit> {
         let inv = Vector3::new(1.0 / d.x, 1.0 / d.y, 1.0 / d.z);
-        let mut best_t = f64::INFINITY;
-        let mut best: Option<(&Quad, f64, f64, u32)> = None;
-        let mut id = 0u32;
+        let mut best = Nearest {
+            t: f64::INFINITY,
+            hit: None,
+            id: 0,
+        };
         for obj in &self.objects {
-            // Slab test against the object's box.
-            let t1 = (obj.min - o).component_mul(&inv);
-            let t2 = (obj.max - o).component_mul(&inv);
-            let tmin = t1.inf(&t2).max();
-            let tmax = t1.sup(&t2).min();
-            if tmax < tmin.max(0.0) || tmin > best_t {
-                id += obj.quads.len() as u32;
-                continue;
-            }
-            for q in &obj.quads {
-                id += 1;
-                let den = d.dot(&q.normal);
-                if den.abs() < 1e-12 {
-                    continue;
-                }
-                let t = (q.origin - o).dot(&q.normal) / den;
-                if t <= 1e-6 || t >= best_t {
-                    continue;
-                }
-                let local = o + d * t - q.origin;
-                let a = local.dot(&q.eu) * q.inv_u2;
-                let b = local.dot(&q.ev) * q.inv_v2;
-                if (0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b) {
-                    best_t = t;
-                    best = Some((q, a, b, id));
-                }
-            }
+            best.test(obj, o, d, &inv);
         }
-        let (q, a, b, id) = best?;
+        for m in &self.movers {
+            // The ray in the moving object's frame (it only translates).
+            best.test(&m.object, &(o - m.offset(time)), d, &inv);
+        }
+        let (q, a, b, id) = best.hit?;
         let mut rgb = self.textures[q.texture].sample(a, b);
         for c in &mut rgb {
             *c *= q.shade;
         }
-        Some(Hit { t: best_t, rgb, id })
+        Some(Hit { t: best.t, rgb, id })
+    }
+}
+
+/// The nearest quad hit so far, and the running quad id.
+struct Nearest<'a> {
+    t: f64,
+    hit: Option<(&'a Quad, f64, f64, u32)>,
+    id: u32,
+}
+
+impl<'a> Nearest<'a> {
+    /// Tests the ray against `obj`'s quads (behind a slab test of its box).
+    fn test(&mut self, obj: &'a Object, o: &Vector3<f64>, d: &Vector3<f64>, inv: &Vector3<f64>) {
+        let t1 = (obj.min - o).component_mul(inv);
+        let t2 = (obj.max - o).component_mul(inv);
+        let tmin = t1.inf(&t2).max();
+        let tmax = t1.sup(&t2).min();
+        if tmax < tmin.max(0.0) || tmin > self.t {
+            self.id += obj.quads.len() as u32;
+            return;
+        }
+        for q in &obj.quads {
+            self.id += 1;
+            let den = d.dot(&q.normal);
+            if den.abs() < 1e-12 {
+                continue;
+            }
+            let t = (q.origin - o).dot(&q.normal) / den;
+            if t <= 1e-6 || t >= self.t {
+                continue;
+            }
+            let local = o + d * t - q.origin;
+            let a = local.dot(&q.eu) * q.inv_u2;
+            let b = local.dot(&q.ev) * q.inv_v2;
+            if (0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b) {
+                self.t = t;
+                self.hit = Some((q, a, b, self.id));
+            }
+        }
     }
 }
 

@@ -145,6 +145,96 @@ impl Texture {
     }
 }
 
+/// Repetitive surface patterns (`Scenario::Repetitive`): what makes epipolar matching
+/// ambiguous.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pattern {
+    /// Fine value noise (a few texels per feature) on a mid grey.
+    Noise,
+    /// Parallel stripes, period 10 texels, at a random angle.
+    Stripes,
+    /// Square tiles of 24 texels with dark grout, each a slightly different shade.
+    Tiles,
+    /// Rows of random 5 x 7 glyphs (printed text seen from afar).
+    Text,
+}
+
+impl Pattern {
+    pub const ALL: [Pattern; 4] = [
+        Pattern::Noise,
+        Pattern::Stripes,
+        Pattern::Tiles,
+        Pattern::Text,
+    ];
+}
+
+impl Texture {
+    /// A `width` x `height` texture of `pattern`.
+    pub fn pattern(width: usize, height: usize, seed: u64, pattern: Pattern) -> Texture {
+        let mut rng = Rng::new(seed);
+        let base = [
+            rng.range(90.0, 170.0),
+            rng.range(90.0, 170.0),
+            rng.range(90.0, 170.0),
+        ];
+        let angle = rng.range(0.0, std::f64::consts::PI);
+        let (ca, sa) = (angle.cos(), angle.sin());
+        let glyphs: Vec<u64> = (0..16).map(|_| rng.next_u64()).collect();
+        let tile_shade: Vec<f64> = (0..64).map(|_| rng.range(-25.0, 25.0)).collect();
+        let noise_seed = rng.next_u64();
+        let mut texels = vec![[0f32; 3]; width * height];
+        for y in 0..height {
+            for x in 0..width {
+                let v = match pattern {
+                    Pattern::Noise => {
+                        let n = 0.7 * value_noise(x as f64 / 2.5, y as f64 / 2.5, noise_seed)
+                            + 0.3 * value_noise(x as f64 / 6.0, y as f64 / 6.0, noise_seed ^ 7);
+                        (n - 0.5) * 160.0
+                    }
+                    Pattern::Stripes => {
+                        let t = (ca * x as f64 + sa * y as f64) / 10.0;
+                        if t.rem_euclid(1.0) < 0.5 {
+                            45.0
+                        } else {
+                            -45.0
+                        }
+                    }
+                    Pattern::Tiles => {
+                        let (tx, ty) = (x % 24, y % 24);
+                        if tx < 2 || ty < 2 {
+                            -70.0
+                        } else {
+                            tile_shade[(x / 24 * 7 + y / 24 * 3) % tile_shade.len()]
+                        }
+                    }
+                    Pattern::Text => {
+                        // Cells of 7 x 10 texels: a 5 x 7 glyph and spacing, lines of 12 px.
+                        let (cx, cy) = (x / 7, y / 12);
+                        let (gx, gy) = (x % 7, y % 12);
+                        let glyph = glyphs[(mix64((cx as u64) << 20 ^ cy as u64) % 16) as usize];
+                        let on = gx < 5 && gy < 7 && (glyph >> (gy * 5 + gx)) & 1 == 1;
+                        if on {
+                            -80.0
+                        } else {
+                            30.0
+                        }
+                    }
+                };
+                texels[y * width + x] = [
+                    (base[0] + v).clamp(0.0, 255.0) as f32,
+                    (base[1] + v).clamp(0.0, 255.0) as f32,
+                    (base[2] + v).clamp(0.0, 255.0) as f32,
+                ];
+            }
+        }
+        Texture {
+            width,
+            height,
+            texels,
+        }
+    }
+}
+
 fn lerp(a: f64, b: f64, t: f64) -> f64 {
     a + (b - a) * t
 }
