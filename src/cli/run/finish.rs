@@ -89,16 +89,19 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
             "a worker thread panicked; outputs written from the map as it was".into()
         });
     }
-    let online = r.system.semidense_cloud();
-    let final_cloud = r
-        .system
-        .semidense_final()
-        .map(|_| r.system.semidense_final_cloud());
-    if final_cloud.is_some() {
+    // `cloud` is what semidense.ply holds; with the end-of-session reconstruction the online
+    // cloud is kept beside it (`online`) until its file and accuracy are written.
+    let (cloud, online) = match r.system.semidense_final() {
+        Some(_) => (
+            r.system.semidense_final_cloud(),
+            Some(r.system.semidense_cloud()),
+        ),
+        None => (r.system.semidense_cloud(), None),
+    };
+    if let Some(online) = &online {
         s.outputs
-            .write("semidense_online.ply", |p| write_ply(p, &online));
+            .write("semidense_online.ply", |p| write_ply(p, online));
     }
-    let cloud = final_cloud.unwrap_or(online.clone());
     #[cfg(feature = "rerun")]
     if let Some(v) = &r.viewer {
         let t = keyframes.last().map_or(0.0, |k| k.timestamp);
@@ -122,7 +125,7 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
         let cloud_sd = r.system.semidense_final().unwrap_or(sd);
         write_depth_maps(s, cloud_sd);
         r.report.semidense_accuracy = cloud_accuracy(s, cloud_sd, &cloud, &keyframes);
-        if let Some(fin) = r.system.semidense_final() {
+        if let (Some(fin), Some(online)) = (r.system.semidense_final(), online) {
             r.report.semidense_final = Some(sdslam::runtime::SemiDenseFinalReport {
                 keyframes: fin.stats.keyframes_reconstructed,
                 skipped_keyframes: fin.stats.keyframes_skipped,
