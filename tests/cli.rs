@@ -962,6 +962,27 @@ fn semidense_final_writes_both_clouds_and_densify_takes_its_keyframes() {
             .len() as u64
     };
     assert_eq!(read("semidense.ply"), f["points"].as_u64().unwrap());
+    // Pixels per stage add up: every stage passes on at most what it was given, and what
+    // the inter-keyframe check kept is the cloud.
+    for (px, points) in [
+        (&r["semidense_pixels"], f["points"].as_u64().unwrap()),
+        (&f["online_pixels"], f["online_points"].as_u64().unwrap()),
+    ] {
+        let n = |k: &str| {
+            px[k]
+                .as_u64()
+                .unwrap_or_else(|| panic!("{k} missing in {px}"))
+        };
+        assert!(n("search_abandoned") + n("fused") <= n("searched"), "{px}");
+        assert!(n("intra_kept") <= n("fused"), "{px}");
+        assert_eq!(
+            n("inter_checked"),
+            n("intra_kept") + n("intra_grown"),
+            "{px}"
+        );
+        assert!(n("inter_kept") < n("inter_checked"), "{px}");
+        assert_eq!(n("inter_kept"), points, "{px}");
+    }
     assert_eq!(
         read("semidense_online.ply"),
         f["online_points"].as_u64().unwrap()

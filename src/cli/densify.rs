@@ -51,6 +51,8 @@ struct DensifyReport {
     semidense_keyframes: usize,
     semidense_skipped_keyframes: usize,
     semidense_points: usize,
+    /// Pixels through each stage (what each check removes).
+    semidense_pixels: sdslam::semidense::PixelCounts,
     semidense_accuracy: Option<sdslam::eval::CloudAccuracy>,
     wall_time_s: f64,
     timing_ms: TimingReport,
@@ -158,6 +160,7 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
         keyframes,
         semidense_keyframes: sd.stats.keyframes_reconstructed,
         semidense_skipped_keyframes: sd.stats.keyframes_skipped,
+        semidense_pixels: sd.stats.pixels.clone(),
         stopped_early,
         ..Default::default()
     };

@@ -136,6 +136,9 @@ pub struct Report {
     /// `[semidense] mode` ("paper" or "tuned"), the settings in force that are not the
     /// paper's, and how the paper's text was read where it is ambiguous.
     pub semidense_mode: Option<crate::config::SemiDenseMode>,
+    /// Pixels through each stage (search, fusion, intra check, inter check), summed over
+    /// the keyframes of the cloud in `semidense.ply`: what each check removes.
+    pub semidense_pixels: crate::semidense::PixelCounts,
     pub semidense_non_paper_settings: std::collections::BTreeMap<String, String>,
     pub semidense_paper_readings: Vec<String>,
     /// End-of-session reconstruction (`--semidense-final`): every keyframe of the final map
@@ -151,6 +154,9 @@ pub struct SemiDenseFinalReport {
     pub keyframes: usize,
     pub skipped_keyframes: usize,
     pub points: usize,
+    /// The online reconstruction's pixels per stage (`semidense_pixels` is the end of
+    /// session's).
+    pub online_pixels: crate::semidense::PixelCounts,
     /// Wall time of the whole reconstruction (both cores), seconds.
     pub total_s: f64,
     pub keyframe_ms: Percentiles,

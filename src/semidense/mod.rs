@@ -23,7 +23,7 @@ pub use fusion::{compatible, fuse, CHI2_1DOF_95, CHI2_2DOF_95};
 pub use gradients::{GradientImage, PixelGradient};
 pub use inter::InterChecker;
 pub use intra::check_smooth_grow_row;
-pub use mapper::{KeyframeDepth, SemiDenseMapper, SemiDenseStats, STORED_PIXEL_BYTES};
+pub use mapper::{KeyframeDepth, PixelCounts, SemiDenseMapper, SemiDenseStats, STORED_PIXEL_BYTES};
 pub use offline::Densifier;
 pub use prior::RegionalPrior;
 pub use reconstructor::{KeyframeReconstructor, StageTimes, MAX_NEIGHBOURS};

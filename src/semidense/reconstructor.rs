@@ -27,6 +27,13 @@ pub struct StageTimes {
     /// Reference pixels searched, and epipolar samples visited over all neighbours.
     pub searched_pixels: u64,
     pub samples: u64,
+    /// Pixels per stage: searches stopped before the last neighbour (no estimate could
+    /// result: too few neighbours left, or early rejection), pixels fused (III-C), fused
+    /// pixels the intra-keyframe check kept, and pixels it grew (III-D).
+    pub abandoned: u64,
+    pub fused: u64,
+    pub intra_kept: u64,
+    pub grown: u64,
 }
 
 struct CachedImage {
@@ -253,6 +260,8 @@ impl KeyframeReconstructor {
             prior: prior.filter(|p| p.enabled()),
             pixels: AtomicU64::new(0),
             samples: AtomicU64::new(0),
+            abandoned: AtomicU64::new(0),
+            fused: AtomicU64::new(0),
         };
         // Bands of rows, walked in blocks of columns: steep epipolar lines walk columns of
         // the neighbours (their transposed words), so a block's pixels reuse the same few
@@ -294,11 +303,25 @@ impl KeyframeReconstructor {
             w,
             intra_rows,
         );
+        let (mut intra_kept, mut grown) = (0u64, 0u64);
+        for (&raw, &now) in self.raw_s2.iter().zip(&self.s2) {
+            if now > 0.0 {
+                if raw > 0.0 {
+                    intra_kept += 1;
+                } else {
+                    grown += 1;
+                }
+            }
+        }
         StageTimes {
             depth: t1 - t0,
             intra: t1.elapsed(),
             searched_pixels: ctx.pixels.load(Ordering::Relaxed),
             samples: ctx.samples.load(Ordering::Relaxed),
+            abandoned: ctx.abandoned.load(Ordering::Relaxed),
+            fused: ctx.fused.load(Ordering::Relaxed),
+            intra_kept,
+            grown,
         }
     }
 
@@ -366,6 +389,8 @@ struct DepthContext<'a> {
     prior: Option<&'a RegionalPrior>,
     pixels: AtomicU64,
     samples: AtomicU64,
+    abandoned: AtomicU64,
+    fused: AtomicU64,
 }
 
 /// Rows per task of the depth stage, and columns per block within it.
@@ -388,7 +413,7 @@ impl DepthContext<'_> {
         out_s2.fill(0.0);
         let rows = out_rho.len() / w.max(1);
         let (ya, yb) = (y0.max(2), (y0 + rows).min(h.saturating_sub(2)));
-        let (mut pixels, mut samples) = (0u64, 0u64);
+        let mut counts = RowCounts::default();
         let mut x0 = 2;
         while x0 + 2 < w {
             if let Some(g) = gate {
@@ -403,18 +428,19 @@ impl DepthContext<'_> {
                     w,
                     &mut out_rho[o..o + w],
                     &mut out_s2[o..o + w],
-                    &mut pixels,
-                    &mut samples,
+                    &mut counts,
                 );
             }
             x0 = x1;
         }
-        self.pixels.fetch_add(pixels, Ordering::Relaxed);
-        self.samples.fetch_add(samples, Ordering::Relaxed);
+        self.pixels.fetch_add(counts.pixels, Ordering::Relaxed);
+        self.samples.fetch_add(counts.samples, Ordering::Relaxed);
+        self.abandoned
+            .fetch_add(counts.abandoned, Ordering::Relaxed);
+        self.fused.fetch_add(counts.fused, Ordering::Relaxed);
     }
 
     /// Pixels `xs` of row `y` (at least two pixels inside the image).
-    #[allow(clippy::too_many_arguments)]
     fn pixels_of_row(
         &self,
         y: usize,
@@ -422,9 +448,9 @@ impl DepthContext<'_> {
         w: usize,
         out_rho: &mut [f32],
         out_s2: &mut [f32],
-        pixels: &mut u64,
-        samples: &mut u64,
+        counts: &mut RowCounts,
     ) {
+        let samples = &mut counts.samples;
         let codes = &self.reference.packed[y * w..(y + 1) * w];
         let mut hyps = [Hypothesis::default(); MAX_NEIGHBOURS];
         for x in xs {
@@ -433,13 +459,14 @@ impl DepthContext<'_> {
                 continue;
             }
             let p = &self.reference.at(x, y);
-            *pixels += 1;
+            counts.pixels += 1;
             let rho_range = self.prior.map_or(self.rho_range, |p| p.range(x, y));
             let mut n = 0;
             let total = self.pairs.len();
             let mut window = None;
             for (j, (pair, img)) in self.pairs.iter().zip(self.neighbours).enumerate() {
                 if self.gives_up(j, total, &hyps[..n]) {
+                    counts.abandoned += 1;
                     break;
                 }
                 if let Some(hy) = pair.search_within(
@@ -462,9 +489,19 @@ impl DepthContext<'_> {
             if let Some((r, s2)) = fuse(&hyps[..n], self.lambda_n) {
                 out_rho[x] = r;
                 out_s2[x] = s2;
+                counts.fused += 1;
             }
         }
     }
+}
+
+/// A band's counters, added to the context's once per band.
+#[derive(Default)]
+struct RowCounts {
+    pixels: u64,
+    samples: u64,
+    abandoned: u64,
+    fused: u64,
 }
 
 impl DepthContext<'_> {

@@ -125,11 +125,13 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
         let cloud_sd = r.system.semidense_final().unwrap_or(sd);
         write_depth_maps(s, cloud_sd);
         r.report.semidense_accuracy = cloud_accuracy(s, cloud_sd, &cloud, &keyframes);
+        r.report.semidense_pixels = cloud_sd.stats.pixels.clone();
         if let (Some(fin), Some(online)) = (r.system.semidense_final(), online) {
             r.report.semidense_final = Some(sdslam::runtime::SemiDenseFinalReport {
                 keyframes: fin.stats.keyframes_reconstructed,
                 skipped_keyframes: fin.stats.keyframes_skipped,
                 points: cloud.len(),
+                online_pixels: sd.stats.pixels.clone(),
                 total_s: final_s,
                 keyframe_ms: fin.t_keyframe.percentiles(),
                 online_accuracy: cloud_accuracy(s, sd, &online, &keyframes),

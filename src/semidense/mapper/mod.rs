@@ -97,6 +97,27 @@ pub struct SemiDenseStats {
     pub skipped_cut: usize,
     /// Wall time spent reconstructing and checking keyframes, seconds.
     pub busy_s: f64,
+    /// Pixels through each stage, summed over the keyframes.
+    pub pixels: PixelCounts,
+}
+
+/// How many pixels each stage of the paper's pipeline passed on, summed over keyframes: what
+/// each check removes.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PixelCounts {
+    /// Reference pixels with G > lambda_G searched (III-B).
+    pub searched: u64,
+    /// ... whose search stopped early (fewer than lambda_N neighbours left, or early
+    /// rejection: no compatible pair after `early_reject_after` neighbours).
+    pub search_abandoned: u64,
+    /// ... fused from at least lambda_N compatible hypotheses (III-C).
+    pub fused: u64,
+    /// Fused pixels the intra-keyframe check kept, and pixels it grew (III-D).
+    pub intra_kept: u64,
+    pub intra_grown: u64,
+    /// Pixels the inter-keyframe check looked at and kept (III-E).
+    pub inter_checked: u64,
+    pub inter_kept: u64,
 }
 
 pub struct SemiDenseMapper {
@@ -377,6 +398,12 @@ impl SemiDenseMapper {
         );
         self.t_depth.record(times.depth);
         self.t_intra.record(times.intra);
+        let c = &mut self.stats.pixels;
+        c.searched += times.searched_pixels;
+        c.search_abandoned += times.abandoned;
+        c.fused += times.fused;
+        c.intra_kept += times.intra_kept;
+        c.intra_grown += times.grown;
         self.stats.keyframes_reconstructed += 1;
     }
 
@@ -597,6 +624,12 @@ impl SemiDenseMapper {
         let dt = t0.elapsed();
         self.stats.busy_s += dt.as_secs_f64();
         self.t_inter.record(dt);
+        let kept = self.arena[start..start + len]
+            .iter()
+            .filter(|p| p.rho > 0.0)
+            .count() as u64;
+        self.stats.pixels.inter_checked += len as u64;
+        self.stats.pixels.inter_kept += kept;
         let me = &mut self.entries[e];
         me.checked = true;
         me.elapsed_ms += dt.as_secs_f64() * 1e3;
