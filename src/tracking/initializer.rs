@@ -40,6 +40,11 @@ pub struct Initializer {
     /// exists); a fixed ring of `pending_capacity` slots, reused.
     pub pending: Vec<PendingFrame>,
     pending_len: usize,
+    /// Of the pending frames, how many (the oldest) came before the current reference: the
+    /// earlier references and their frames, kept when the reference is renewed so the new
+    /// map can pose them too (the backfill chains back past the first keyframe); the oldest
+    /// make room for newer frames when the ring is full.
+    retained: usize,
     /// Attempts against the current reference refused for a reason other than too little
     /// parallax (ambiguous motion, too few triangulated points).
     refused: usize,
@@ -108,6 +113,7 @@ impl Initializer {
                 })
                 .collect(),
             pending_len: 0,
+            retained: 0,
             refused: 0,
             max_refused_attempts: 15,
         }
@@ -125,7 +131,7 @@ impl Initializer {
     }
 
     fn keep_pending(&mut self, f: &TrackedFrame) {
-        if self.pending_len == self.pending.len() {
+        if !self.make_room() {
             return; // beyond the window: those frames stay untracked
         }
         let p = &mut self.pending[self.pending_len];
@@ -135,14 +141,44 @@ impl Initializer {
         self.pending_len += 1;
     }
 
+    /// A free slot at the end of the pending frames: the oldest frame from before the
+    /// reference goes when the ring is full. False when full of frames since the reference.
+    fn make_room(&mut self) -> bool {
+        if self.pending_len < self.pending.len() {
+            return true;
+        }
+        if self.retained == 0 {
+            return false;
+        }
+        self.pending[..self.pending_len].rotate_left(1);
+        self.pending_len -= 1;
+        self.retained -= 1;
+        true
+    }
+
     pub fn reset(&mut self) {
         self.reference = None;
         self.pending_len = 0;
+        self.retained = 0;
         self.refused = 0;
     }
 
     fn set_reference(&mut self, f: &TrackedFrame, gray: &[u8], rgb: Option<&[u8]>) {
-        self.pending_len = 0;
+        // The old reference joins the pending frames, in time order (after the frames kept
+        // from before it, before those seen since): every pending frame is now older than
+        // the new reference.
+        if let Some(old) = self.reference.take() {
+            if self.make_room() {
+                let at = self.retained;
+                self.pending[at..=self.pending_len].rotate_right(1);
+                let p = &mut self.pending[at];
+                p.index = self.reference_index;
+                p.timestamp = self.reference_timestamp;
+                p.features.copy_from(&old);
+                self.pending_len += 1;
+            }
+        }
+        self.retained = self.pending_len;
         self.refused = 0;
         self.reference = Some(f.features.clone());
         self.reference_index = f.index;
@@ -274,5 +310,59 @@ impl Initializer {
                 InitAttempt::Failed(e)
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::KeyPoint;
+
+    /// A frame of 150 features at random places with random descriptors: nothing matches
+    /// another frame, so each one renews the reference.
+    fn unmatched_frame(index: u64, seed: u64) -> TrackedFrame {
+        let mut f = TrackedFrame::new(200, 640, 480);
+        f.index = index;
+        f.timestamp = index as f64 / 30.0;
+        let mut h = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let mut next = move || {
+            h ^= h << 13;
+            h ^= h >> 7;
+            h ^= h << 17;
+            h
+        };
+        for _ in 0..150 {
+            let (x, y) = ((next() % 620) as f32 + 10.0, (next() % 460) as f32 + 10.0);
+            f.features.keypoints.push(KeyPoint {
+                x,
+                y,
+                ux: x,
+                uy: y,
+                ..Default::default()
+            });
+            f.features
+                .descriptors
+                .push([next(), next(), next(), next()]);
+        }
+        f.reset_matches();
+        f
+    }
+
+    #[test]
+    fn renewed_references_stay_pending_in_time_order_and_the_oldest_go_first() {
+        let mut init = Initializer::new(200, 640, 480);
+        let gray = vec![0u8; 640 * 480];
+        let n = PENDING_CAPACITY as u64 + 10;
+        for i in 0..n {
+            let f = unmatched_frame(i, i + 1);
+            let _ = init.prepare(&f, &gray, None);
+            assert_eq!(init.reference_index, i, "frame {i} should be the reference");
+            let kept: Vec<u64> = init.pending().iter().map(|p| p.index).collect();
+            // Every earlier frame, oldest first, as many as the ring holds.
+            let from = i.saturating_sub(PENDING_CAPACITY as u64);
+            assert_eq!(kept, (from..i).collect::<Vec<_>>(), "after frame {i}");
+        }
+        init.reset();
+        assert!(init.pending().is_empty());
     }
 }

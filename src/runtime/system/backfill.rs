@@ -178,7 +178,13 @@ impl System {
             if let Some(Some(reason)) = judged {
                 self.stats.degraded_frames[reason as usize] += 1;
             }
-            if judged == Some(None) {
+            if judged != Some(None) {
+                // Not posed: the chain goes on at the last velocity (dead reckoning), so the
+                // next older frame is searched from one more step back.
+                if bf.step.is_some() {
+                    bf.guess = Some(chained);
+                }
+            } else {
                 bf.step = Some(tf.t_cw.0 * bf.guess.unwrap_or(p1).inverse());
                 bf.guess = Some(tf.t_cw.0);
                 self.trajectory.push(TrajectoryEntry {

@@ -295,6 +295,13 @@ impl System {
         self.stats.tracked_frames += 1;
         let stamps = (self.init.reference_timestamp, self.frame.timestamp);
         self.backfill.start(kf0, kf1, stamps, map.n_points());
+        let pending = self.init.pending();
+        tracing::debug!(
+            pending = pending.len(),
+            oldest = pending.first().map(|p| p.index),
+            newest = pending.last().map(|p| p.index),
+            "backfill"
+        );
         TrackingState::Ok
     }
 }
