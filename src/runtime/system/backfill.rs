@@ -21,6 +21,8 @@ pub(super) struct Backfill {
     /// from it to the one before it (a constant-velocity step back).
     guess: Option<Se3>,
     step: Option<Se3>,
+    /// The chain has passed the first keyframe (frames kept from before the reference).
+    passed_kf0: bool,
     frame: Option<TrackedFrame>,
     /// Map points now: (id, position, descriptor, max distance).
     points: Vec<(
@@ -48,6 +50,7 @@ impl Backfill {
         self.stamps = stamps;
         self.guess = None;
         self.step = None;
+        self.passed_kf0 = false;
         self.points.reserve(2 * n_points);
         self.projected.reserve(2 * n_points);
     }
@@ -116,6 +119,15 @@ impl System {
             // Two guesses: the last frame done, stepped back at its velocity (any speed
             // profile, a start from rest), then the keyframes' interpolation at this time
             // (steady fast motion, where the first frame back has no velocity yet).
+            if pf.timestamp < ts0 && !bf.passed_kf0 {
+                // Past the first keyframe (the reference, not a pending frame): the chain
+                // goes through its pose.
+                bf.passed_kf0 = true;
+                if let Some(g) = bf.guess {
+                    bf.step = Some(p0 * g.inverse());
+                }
+                bf.guess = Some(p0);
+            }
             let alpha = ((pf.timestamp - ts0) / (ts1 - ts0)).clamp(0.0, 1.0);
             let between = p0.inverse().lerp_slerp(&p1.inverse(), alpha).inverse();
             let chained = match (bf.guess, bf.step) {
