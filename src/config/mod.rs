@@ -209,17 +209,9 @@ impl Default for SemiDenseConfig {
 }
 
 impl SemiDenseConfig {
-    /// How the paper's text is read where it is ambiguous (recorded in report.json):
-    /// - fusion (III-C): "at least lambda_N compatible hypotheses" (the sentence before
-    ///   the equation says "n > lambda_N"; we follow the two sentences that say "at least",
-    ///   also in the inter-keyframe check III-E);
-    /// - the prior interval [rho_0 - 2 sigma, rho_0 + 2 sigma] is clamped below at 0 (the
-    ///   point at infinity): a negative inverse depth is behind the camera;
-    /// - rho_0, sigma_rho0: the mean and standard deviation of the inverse depths of the
-    ///   map points the keyframe observes (at least 10);
-    /// - the N neighbours are the keyframe's N best covisible keyframes, whatever their
-    ///   baseline; a keyframe with fewer than lambda_N of them is not reconstructed;
-    /// - the best match along the segment is kept whatever its similarity error.
+    /// How the paper's text is read where it is ambiguous (recorded in report.json). On
+    /// "n >= lambda_N": sections III-C and III-E say "at least lambda_N"; the sentence
+    /// before eq. 10 says "n > lambda_N".
     pub const PAPER_READINGS: &'static [&'static str] = &[
         "fusion and inter-keyframe check: n >= lambda_N ('at least lambda_N')",
         "prior interval rho_0 +- 2 sigma_rho0, lower bound clamped at 0 (infinity)",

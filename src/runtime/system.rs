@@ -37,6 +37,7 @@ mod initialisation;
 mod map_files;
 mod mapping_thread;
 mod reserved;
+mod semidense;
 mod trajectory;
 
 pub use atlas::AtlasSummary;
@@ -44,6 +45,7 @@ pub use reserved::ReservedMemory;
 
 use backfill::{Backfill, BACKFILL_PER_FRAME};
 use mapping_thread::{spawn_mapper, MapperSetup, Mapping};
+use semidense::FinalSemiDense;
 
 /// Frames slower than this are logged (debug) with their stage times.
 const SLOW_FRAME: std::time::Duration = std::time::Duration::from_millis(20);
@@ -168,14 +170,6 @@ pub struct System {
     /// Consecutive frames initialisation has failed (for a warning).
     uninitialised_frames: usize,
     pub stats: SystemStats,
-}
-
-/// The end-of-session semi-dense reconstruction: its settings and, once run, its mapper.
-struct FinalSemiDense {
-    config: crate::config::SemiDenseConfig,
-    max_keyframes: usize,
-    max_features: usize,
-    mapper: Option<Box<SemiDenseMapper>>,
 }
 
 /// The configured numbers `System` itself applies (the stages keep their own).
@@ -310,12 +304,7 @@ impl System {
                 final_ba_iterations: config.map.final_ba_iterations,
                 new_map_when_lost: config.tracking.new_map_when_lost,
             },
-            final_semidense: FinalSemiDense {
-                config: config.semidense.clone(),
-                max_keyframes: config.map.max_keyframes,
-                max_features,
-                mapper: None,
-            },
+            final_semidense: FinalSemiDense::new(config, max_features),
             uninitialised_frames: 0,
             stats: SystemStats {
                 frames: 0,
@@ -390,33 +379,6 @@ impl System {
             }
         }
         self.semidense.has_failed().then_some("semi-dense")
-    }
-
-    /// Semi-dense results (after [`finish`](Self::finish), or inline mode at any time).
-    pub fn semidense(&self) -> Option<&SemiDenseMapper> {
-        self.semidense.mapper()
-    }
-
-    /// The semi-dense cloud of the primary map (see [`System::atlas`]) in world coordinates
-    /// with the current keyframe poses.
-    pub fn semidense_cloud(&self) -> Vec<crate::geometry::CloudPoint> {
-        let mut out = Vec::new();
-        let primary = self.atlas().primary;
-        if let Some(m) = self.semidense.mapper() {
-            m.cloud_of(&lock(&self.map), primary, &mut out);
-        }
-        out
-    }
-
-    /// The end-of-session cloud ([`reconstruct_semidense_final`](Self::reconstruct_semidense_final))
-    /// of the primary map; empty when it was not run.
-    pub fn semidense_final_cloud(&self) -> Vec<crate::geometry::CloudPoint> {
-        let mut out = Vec::new();
-        let primary = self.atlas().primary;
-        if let Some(m) = self.semidense_final() {
-            m.cloud_of(&lock(&self.map), primary, &mut out);
-        }
-        out
     }
 
     /// Tracks one undistorted frame (grey, optional RGB of the same size).

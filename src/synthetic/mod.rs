@@ -90,7 +90,7 @@ pub struct SyntheticSequence {
 
 impl SyntheticSequence {
     pub fn new(config: SyntheticConfig) -> Self {
-        let mut scene = Scene::room_with(config.seed, config.scenario.surfaces());
+        let mut scene = Scene::room(config.seed, config.scenario.surfaces());
         if config.scenario.moving_objects() {
             scene.add_movers(config.seed);
         }

@@ -234,22 +234,12 @@ impl Scene {
     /// The built-in desk scene (z up, metres): a 7 x 7 x 3 m room, a desk at the centre with
     /// boxes and standing boards on it, cabinets and posters further away.
     pub fn desk(seed: u64) -> Scene {
-        Scene::room(seed, false)
+        Scene::room(seed, Surfaces::Shapes)
     }
 
-    /// The desk scene; with `weak_walls` the four walls carry a faint, sparse texture (a
-    /// painted room), so a camera looking outward sees few features.
-    pub fn room(seed: u64, weak_walls: bool) -> Scene {
-        let surfaces = if weak_walls {
-            Surfaces::WeakWalls
-        } else {
-            Surfaces::Shapes
-        };
-        Scene::room_with(seed, surfaces)
-    }
-
-    /// The desk scene with its surfaces textured as `surfaces` says.
-    pub fn room_with(seed: u64, surfaces: Surfaces) -> Scene {
+    /// The desk scene with its surfaces textured as `surfaces` says (weak walls: a faint,
+    /// sparse texture, so a camera looking outward sees few features).
+    pub fn room(seed: u64, surfaces: Surfaces) -> Scene {
         let weak_walls = surfaces == Surfaces::WeakWalls;
         let (wall_density, wall_contrast) = if weak_walls { (0.35, 0.12) } else { (1.5, 0.8) };
         let mut s = Scene::new();

@@ -167,20 +167,28 @@ impl Initializer {
         // The old reference joins the pending frames, in time order (after the frames kept
         // from before it, before those seen since): every pending frame is now older than
         // the new reference.
-        if let Some(old) = self.reference.take() {
+        let old = self.reference.take();
+        if let Some(old) = &old {
             if self.make_room() {
                 let at = self.retained;
                 self.pending[at..=self.pending_len].rotate_right(1);
                 let p = &mut self.pending[at];
                 p.index = self.reference_index;
                 p.timestamp = self.reference_timestamp;
-                p.features.copy_from(&old);
+                p.features.copy_from(old);
                 self.pending_len += 1;
             }
         }
         self.retained = self.pending_len;
         self.refused = 0;
-        self.reference = Some(f.features.clone());
+        // The old reference's buffers take the new one (no allocation once warm).
+        self.reference = Some(match old {
+            Some(mut r) => {
+                r.copy_from(&f.features);
+                r
+            }
+            None => f.features.clone(),
+        });
         self.reference_index = f.index;
         self.reference_timestamp = f.timestamp;
         self.reference_images.set(gray, rgb);

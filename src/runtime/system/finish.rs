@@ -64,56 +64,6 @@ impl System {
         self.semidense.finish(&self.map, cut)
     }
 
-    /// The paper's end-of-session reconstruction ("after a full bundle adjustment"): after
-    /// [`finish`](Self::finish) (with the final BA on), every keyframe of the map now is
-    /// reconstructed with its covisible neighbours of the final map (loop revisits
-    /// included) and checked against all of them, on `[semidense] threads` workers at
-    /// normal priority. The online results stay as they are. Call before
-    /// [`release_working_memory`](Self::release_working_memory) (it needs the keyframe
-    /// images). Returns the new results; `None` when semi-dense mapping is off or the run
-    /// is not finished.
-    pub fn reconstruct_semidense_final(&mut self) -> Option<&SemiDenseMapper> {
-        if !self.finished || !self.final_semidense.config.enabled {
-            return None;
-        }
-        if let Some(m) = self.semidense.mapper_mut() {
-            m.release_working_memory();
-        }
-        let f = &mut self.final_semidense;
-        let config = crate::config::SemiDenseConfig {
-            // Tracking is over: the workers need not step aside.
-            nice: 0,
-            sched_idle: false,
-            yield_to_tracking: false,
-            ..f.config.clone()
-        };
-        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
-        let mut mapper = Box::new(SemiDenseMapper::new(
-            self.camera.intrinsics(),
-            w,
-            h,
-            &config,
-            f.max_keyframes,
-            f.max_features,
-        ));
-        let keyframes: Vec<KeyFrameId> = {
-            let m = lock(&self.map);
-            let mut k: Vec<(u64, KeyFrameId)> =
-                m.keyframes().map(|(id, k)| (k.serial, id)).collect();
-            k.sort_unstable();
-            k.into_iter().map(|(_, id)| id).collect()
-        };
-        mapper.reconstruct_all(&self.map, &keyframes);
-        mapper.release_working_memory();
-        f.mapper = Some(mapper);
-        f.mapper.as_deref()
-    }
-
-    /// The end-of-session results, once [`reconstruct_semidense_final`](Self::reconstruct_semidense_final) ran.
-    pub fn semidense_final(&self) -> Option<&SemiDenseMapper> {
-        self.final_semidense.mapper.as_deref()
-    }
-
     /// After [`finish`](Self::finish): frees what only running needed (the semi-dense
     /// gradient cache and per-pixel buffers, its worker threads, keyframe images), so writing
     /// the outputs does not add to the run's peak memory. Poses, map, cloud and depth maps

@@ -6,7 +6,7 @@
 //! keyframe allocates nothing.
 
 mod output;
-use output::{pose_and_scale_now, reanchor, Anchor};
+use output::{pose_and_scale_now, reanchor, sample_anchors, Anchor};
 
 use std::collections::VecDeque;
 use std::sync::Mutex;
@@ -429,13 +429,11 @@ impl SemiDenseMapper {
             return None;
         }
         // Prior from the ORB map points' inverse depths in this keyframe; a spread of them
-        // (every few) anchors the keyframe's depth scale.
+        // anchors the keyframe's depth scale.
         self.scratch_f32.clear();
         self.prior.clear();
-        let mut anchors = heapless::Vec::new();
-        let n_obs = k.observed().count();
-        let stride = n_obs.div_ceil(MAX_ANCHORS).max(1);
-        for (n, (i, mp)) in k.observed().enumerate() {
+        let anchors = sample_anchors(&map, k, &k.t_cw, 1.0);
+        for (i, mp) in k.observed() {
             let Some(p) = map.point(mp) else { continue };
             let x = k.t_cw.transform(&p.position);
             // In front of the camera (NaN is not).
@@ -448,13 +446,6 @@ impl SemiDenseMapper {
             }
             if let Some(kp) = k.keypoints.get(i) {
                 self.prior.add(kp.ux, kp.uy, rho);
-            }
-            if n % stride == 0 {
-                let _ = anchors.push(Anchor {
-                    point: mp,
-                    keypoint: i as u32,
-                    x_then: [x.x as f32, x.y as f32, x.z as f32],
-                });
             }
         }
         let rho_range = prior_range(&self.scratch_f32)?;

@@ -74,13 +74,25 @@ pub(super) fn reanchor(map: &Map, e: &mut KeyframeDepth, t_cw: &CameraFromWorld,
     if alive >= REANCHOR_BELOW || !(scale.is_finite() && scale > 0.0) {
         return;
     }
-    let n_obs = k.observed().count();
-    let stride = n_obs.div_ceil(MAX_ANCHORS).max(1);
+    let anchors = sample_anchors(map, k, t_cw, scale);
+    // Only when it gives more than what is left.
+    if anchors.len() > alive {
+        e.anchors = anchors;
+    }
+}
+
+/// Up to [`MAX_ANCHORS`] of the points `k` observes, spread over them (every few), with
+/// their camera-frame positions at pose `t_cw` divided by the depth scale `scale` (1 at
+/// reconstruction).
+pub(super) fn sample_anchors(
+    map: &Map,
+    k: &KeyFrame,
+    t_cw: &CameraFromWorld,
+    scale: f32,
+) -> heapless::Vec<Anchor, MAX_ANCHORS> {
+    let stride = k.observed().count().div_ceil(MAX_ANCHORS).max(1);
     let mut anchors = heapless::Vec::new();
-    for (n, (i, mp)) in k.observed().enumerate() {
-        if n % stride != 0 {
-            continue;
-        }
+    for (i, mp) in k.observed().step_by(stride) {
         let Some(p) = map.point(mp) else { continue };
         let x = t_cw.transform(&p.position) / scale as f64;
         if x.z > 0.0 {
@@ -91,10 +103,7 @@ pub(super) fn reanchor(map: &Map, e: &mut KeyframeDepth, t_cw: &CameraFromWorld,
             });
         }
     }
-    // Only when it gives more than what is left.
-    if anchors.len() > alive {
-        e.anchors = anchors;
-    }
+    anchors
 }
 
 /// Pose and depth scale of a keyframe that has left the map (culled after reconstruction):

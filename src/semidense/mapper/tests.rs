@@ -118,14 +118,20 @@ fn cloud_at(mapper: &SemiDenseMapper, map: &Mutex<Map>, t: f64) -> Vec<[f32; 3]>
         .collect()
 }
 
-#[test]
-fn depths_follow_a_rescaling_after_every_anchor_was_fused() {
+/// Every keyframe reconstructed and checked, and the middle one's entry index.
+fn reconstructed() -> (Densifier, SemiDenseMapper, usize) {
     let config = Config::default();
     let d = densifier(&config);
     let mut mapper = mapper_for(&config.semidense);
     let kfs = d.keyframes().to_vec();
     mapper.reconstruct_all(d.map(), &kfs);
-    let e = &mapper.entries()[kfs.len() / 2];
+    (d, mapper, kfs.len() / 2)
+}
+
+#[test]
+fn depths_follow_a_rescaling_after_every_anchor_was_fused() {
+    let (d, mapper, mid) = reconstructed();
+    let e = &mapper.entries()[mid];
     let (kf, t) = (e.keyframe, e.timestamp);
     let before = cloud_at(&mapper, d.map(), t);
     assert!(before.len() > 1000, "{} points", before.len());
@@ -154,12 +160,8 @@ fn depths_follow_a_rescaling_after_every_anchor_was_fused() {
 
 #[test]
 fn a_culled_keyframe_without_anchors_follows_a_correction() {
-    let config = Config::default();
-    let d = densifier(&config);
-    let mut mapper = mapper_for(&config.semidense);
-    let kfs = d.keyframes().to_vec();
-    mapper.reconstruct_all(d.map(), &kfs);
-    let e = &mapper.entries()[kfs.len() / 2];
+    let (d, mapper, mid) = reconstructed();
+    let e = &mapper.entries()[mid];
     let (kf, c_before) = (e.keyframe, e.t_cw.center());
     let s = 1.5;
     {
