@@ -63,6 +63,7 @@ fn frames(c: &mut Criterion) {
         }
         g.finish();
     }
+    mcap_replay(c, &seq);
     let map = RectifyMap::new(&cam);
     let mut dst = vec![0u8; 640 * 480];
     c.bench_function("rectify_gray_640x480", |b| {
@@ -73,6 +74,60 @@ fn frames(c: &mut Criterion) {
     g.bench_function("render_640x480", |b| {
         b.iter(|| seq.render_frame(5, &mut out))
     });
+    g.finish();
+}
+
+/// MCAP replay cost per 640x480 frame (issue 28: <= 1 ms): a ROS 2 bag of 10 rendered frames
+/// (zstd or lz4 chunks, or none), read frame by frame into a reused frame; the
+/// open (scan of the file) is outside the timing.
+fn mcap_replay(c: &mut Criterion, seq: &SyntheticSequence) {
+    use sdslam::camera::mcap::write::{BagImages, RosBagWriter};
+    use sdslam::camera::mcap::{McapSource, StampSource};
+    use sdslam::camera::{FrameSource, FrameStatus};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut g = c.benchmark_group("mcap_replay_640x480");
+    use mcap::Compression::{Lz4, Zstd};
+    for (name, images, colour, compression) in [
+        ("ros_image_rgb8_zstd", BagImages::Raw, true, Some(Zstd)),
+        ("ros_image_rgb8_lz4", BagImages::Raw, true, Some(Lz4)),
+        ("ros_image_rgb8_uncompressed", BagImages::Raw, true, None),
+        ("ros_image_mono8_zstd", BagImages::Raw, false, Some(Zstd)),
+        ("ros_image_mono8_lz4", BagImages::Raw, false, Some(Lz4)),
+        ("ros_compressed_png_rgb", BagImages::Png, true, None),
+        ("ros_compressed_jpeg_rgb", BagImages::Jpeg, true, None),
+    ] {
+        let path = dir.path().join(format!("{name}.mcap"));
+        let file = std::io::BufWriter::new(std::fs::File::create(&path).expect("create"));
+        let opts = mcap::WriteOptions::new().compression(compression);
+        let mut w = RosBagWriter::with_options(file, "/camera", images, opts).expect("writer");
+        let mut f = Frame::new(640, 480);
+        for i in 0..10 {
+            seq.render_frame(i, &mut f);
+            f.has_color = colour;
+            w.write_frame(&f).expect("write");
+        }
+        w.finish().expect("finish");
+        let mut out = Frame::new(640, 480);
+        g.bench_function(name, |b| {
+            b.iter_custom(|iters| {
+                let mut total = std::time::Duration::ZERO;
+                let mut src = McapSource::open(&path, None, StampSource::Header).expect("open");
+                for _ in 0..iters {
+                    let t = std::time::Instant::now();
+                    let mut status = src.next_frame(&mut out).expect("read");
+                    total += t.elapsed();
+                    if status == FrameStatus::End {
+                        src = McapSource::open(&path, None, StampSource::Header).expect("open");
+                        let t = std::time::Instant::now();
+                        status = src.next_frame(&mut out).expect("read");
+                        total += t.elapsed();
+                    }
+                    assert_eq!(status, FrameStatus::Ready);
+                }
+                total
+            })
+        });
+    }
     g.finish();
 }
 

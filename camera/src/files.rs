@@ -248,10 +248,13 @@ pub fn euroc_cam_dir(dir: &Path) -> Option<PathBuf> {
 
 /// Median frame rate of a list (robust to a few missing frames).
 fn estimate_fps(entries: &[ListEntry]) -> f64 {
-    let mut d: Vec<f64> = entries
-        .windows(2)
-        .map(|w| w[1].timestamp - w[0].timestamp)
-        .collect();
+    let t: Vec<f64> = entries.iter().map(|e| e.timestamp).collect();
+    median_rate(&t)
+}
+
+/// Median rate of increasing timestamps (30 when there are fewer than two).
+pub(crate) fn median_rate(timestamps: &[f64]) -> f64 {
+    let mut d: Vec<f64> = timestamps.windows(2).map(|w| w[1] - w[0]).collect();
     if d.is_empty() {
         return 30.0;
     }

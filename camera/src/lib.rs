@@ -13,6 +13,8 @@ pub mod error;
 pub mod files;
 pub mod frame;
 pub mod list;
+#[cfg(feature = "mcap")]
+pub mod mcap;
 pub mod pacing;
 pub mod source;
 

@@ -26,6 +26,7 @@ macro_rules! out {
     }};
 }
 
+mod bag;
 mod bench;
 mod calibrate;
 mod cameras;
@@ -120,6 +121,8 @@ enum Command {
     Features(features::FeaturesArgs),
     /// Print every setting with its default (`--defaults`), or check a file (`--check FILE`).
     Config(config_cmd::ConfigArgs),
+    /// Write a source's frames (default: the built-in sequence) as a ROS 2 bag in MCAP.
+    Bag(bag::BagArgs),
     /// Render the built-in synthetic sequence to a TUM RGB-D folder (images, depth, ground truth).
     Synth(synth::SynthArgs),
 }
@@ -147,6 +150,7 @@ fn dispatch(cli: Cli) -> Result<()> {
         Some(Command::Densify(a)) => densify::densify(a),
         Some(Command::Bench(b)) => bench::bench(b),
         Some(Command::Synth(a)) => synth::synth(a),
+        Some(Command::Bag(a)) => bag::bag(a),
         Some(Command::Features(a)) => features::features(a),
         Some(Command::Vocab(v)) => vocab::vocab(v),
         Some(Command::Config(a)) => config_cmd::config(a),

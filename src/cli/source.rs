@@ -8,8 +8,9 @@ use sdslam::camera::device::fake::FakeDevice;
 use sdslam::camera::device::{
     self, Exposure, LiveOptions, LiveSource, LiveStats, ModeRequest, PixelFormat,
 };
+use sdslam::camera::mcap::{is_mcap, CameraInfo, McapSource, StampSource};
 use sdslam::camera::{files::euroc_cam_dir, FrameSource, ImageListSource};
-use sdslam::camera_model::Calibration;
+use sdslam::camera_model::{Calibration, PinholeRadtan};
 use sdslam::eval::TimedPose;
 use sdslam::io::{load_calibration, read_tum_trajectory};
 use sdslam::synthetic::{Scenario, SyntheticConfig, SyntheticSequence};
@@ -47,6 +48,21 @@ pub struct CameraArgs {
     /// the calibration's size and frame rate.
     #[arg(long, value_parser = parse_pixel_format)]
     pub pixel_format: Option<PixelFormat>,
+    /// MCAP replays: the image topic (default: the file's only image topic).
+    #[arg(long)]
+    pub topic: Option<String>,
+    /// MCAP replays: timestamps from the image header's stamp (the driver's capture time,
+    /// the default) or from the MCAP log time (when the recorder got the message).
+    #[arg(long, value_enum, default_value_t = McapTime::Header)]
+    pub mcap_time: McapTime,
+}
+
+/// Which clock stamps MCAP frames.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum McapTime {
+    #[default]
+    Header,
+    Log,
 }
 
 impl CameraArgs {
@@ -180,8 +196,8 @@ fn open_synthetic(
 }
 
 /// Opens SOURCE: `synthetic` (or none), `synthetic:NAME` (a stress scene, `sdslam synth
-/// --help`), `v4l2:/dev/videoN`, a TUM folder, a EuRoC folder, or an image folder with a
-/// timestamps file. A TUM folder's `camera.yaml` and EuRoC's
+/// --help`), `v4l2:/dev/videoN`, an MCAP file, a TUM folder, a EuRoC folder, or an image
+/// folder with a timestamps file. A TUM folder's `camera.yaml` and EuRoC's
 /// `sensor.yaml` are used when `calib` is not given.
 pub fn open(
     spec: Option<&str>,
@@ -212,6 +228,9 @@ pub fn open(
                 depth_truth: DepthTruth::None,
                 live: Some(cam.stats),
             })
+        }
+        Some(s) if s.ends_with(".mcap") || is_mcap(Path::new(s)) => {
+            open_mcap(Path::new(s), calib, frames, camera)
         }
         Some(s) => {
             let dir = Path::new(s);
@@ -257,6 +276,103 @@ pub fn open(
                 live: None,
             })
         }
+    }
+}
+
+/// An MCAP file (ROS 2 bag or Foxglove recording); its `CameraInfo` is the calibration when
+/// `--calib` is not given.
+fn open_mcap(
+    path: &Path,
+    calib: Option<&Path>,
+    frames: Option<usize>,
+    camera: &CameraArgs,
+) -> Result<OpenedSource> {
+    let stamps = match camera.mcap_time {
+        McapTime::Header => StampSource::Header,
+        McapTime::Log => StampSource::LogTime,
+    };
+    let mut src = McapSource::open(path, camera.topic.as_deref(), stamps)?;
+    src.limit(frames);
+    let info = src.info().clone();
+    let (mut calibration, name) = match (calib, src.camera_info()) {
+        (Some(p), _) => (load_calibration(p)?, p.display().to_string()),
+        (None, Some(ci)) => {
+            let name = format!("{} (CameraInfo beside {})", path.display(), src.topic());
+            (calibration_from_camera_info(ci, &name)?, name)
+        }
+        (None, None) => {
+            return Err(Error::Invalid(format!(
+                "{}: topic {} has no CameraInfo beside it: pass --calib FILE",
+                path.display(),
+                src.topic()
+            )))
+        }
+    };
+    calibration.check_image_size(info.width, info.height, &name)?;
+    if calib.is_none() {
+        calibration.fps = info.fps;
+    }
+    Ok(OpenedSource {
+        source: Box::new(src),
+        calibration,
+        calibration_name: name,
+        groundtruth: None,
+        depth_truth: DepthTruth::None,
+        live: None,
+    })
+}
+
+/// A ROS `CameraInfo` as a calibration: `plumb_bob` / `rational_polynomial` (k4..k6 zero) are
+/// the pinhole radial-tangential model; an empty `d` means no distortion.
+pub fn calibration_from_camera_info(ci: &CameraInfo, name: &str) -> Result<Calibration> {
+    let bad = |m: String| Error::Invalid(format!("{name}: {m}"));
+    let d = &ci.d;
+    let model = ci.distortion_model.as_str();
+    match model {
+        "plumb_bob" | "rational_polynomial" | "" => {}
+        "equidistant" | "fisheye" | "kannala_brandt" => {
+            return Err(bad(format!(
+                "distortion model `{model}` (fisheye) is not supported yet; pass a pinhole --calib of rectified images"
+            )))
+        }
+        other => return Err(bad(format!("distortion model `{other}` is not supported (plumb_bob, rational_polynomial)"))),
+    }
+    if d.iter().skip(5).any(|&v| v != 0.0) {
+        return Err(bad(format!(
+            "rational_polynomial coefficients k4..k6 {:?} are not zero; sdslam models k1 k2 p1 p2 k3",
+            &d[5..]
+        )));
+    }
+    let at = |i: usize| d.get(i).copied().unwrap_or(0.0);
+    let k = &ci.k;
+    if !(k[0] > 0.0 && k[4] > 0.0) || k.iter().any(|v| !v.is_finite()) {
+        return Err(bad(format!("K {k:?} has no positive focal lengths")));
+    }
+    Ok(Calibration {
+        camera: PinholeRadtan {
+            k1: at(0),
+            k2: at(1),
+            p1: at(2),
+            p2: at(3),
+            k3: at(4),
+            ..PinholeRadtan::pinhole(k[0], k[4], k[2], k[5], ci.width, ci.height)
+        },
+        fps: 30.0,
+    })
+}
+
+/// A calibration as a ROS `CameraInfo` (`plumb_bob`).
+pub fn camera_info_from_calibration(c: &Calibration) -> CameraInfo {
+    let m = &c.camera;
+    CameraInfo {
+        width: m.width,
+        height: m.height,
+        distortion_model: "plumb_bob".into(),
+        d: vec![m.k1, m.k2, m.p1, m.p2, m.k3],
+        k: [m.fx, 0.0, m.cx, 0.0, m.fy, m.cy, 0.0, 0.0, 1.0],
+        p: [
+            m.fx, 0.0, m.cx, 0.0, 0.0, m.fy, m.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+        ],
     }
 }
 

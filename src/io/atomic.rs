@@ -1,6 +1,7 @@
 //! Atomic file writes.
 
-use std::io::Write;
+use std::fs::File;
+use std::io::{BufWriter, Write};
 use std::path::Path;
 
 use crate::error::{Error, Result};
@@ -16,6 +17,18 @@ pub fn write_atomic_with(
     path: &Path,
     fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> Result<()> {
+    write_atomic_file(path, |mut w| {
+        fill(&mut w)?;
+        Ok(w)
+    })
+}
+
+/// Like [`write_atomic_with`] for writers that also seek (MCAP patches its header and
+/// summary): `fill` gets the buffered temporary file and hands it back when complete.
+pub fn write_atomic_file(
+    path: &Path,
+    fill: impl FnOnce(BufWriter<File>) -> std::io::Result<BufWriter<File>>,
+) -> Result<()> {
     let dir = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -29,8 +42,7 @@ pub fn write_atomic_with(
         std::process::id()
     ));
     let result = (|| {
-        let mut w = std::io::BufWriter::with_capacity(1 << 16, std::fs::File::create(&tmp)?);
-        fill(&mut w)?;
+        let w = fill(BufWriter::with_capacity(1 << 16, File::create(&tmp)?))?;
         let f = w.into_inner().map_err(|e| e.into_error())?;
         f.sync_all()?;
         std::fs::rename(&tmp, path)

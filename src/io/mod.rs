@@ -7,7 +7,7 @@ mod images;
 mod ply;
 mod trajectory;
 
-pub use atomic::{write_atomic, write_atomic_with, write_json_atomic};
+pub use atomic::{write_atomic, write_atomic_file, write_atomic_with, write_json_atomic};
 pub use images::{
     load_tum_depth_frames, read_depth_png, write_depth_png, write_gray_png, write_rgb_png,
 };
