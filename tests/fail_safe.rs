@@ -1,7 +1,8 @@
 //! Every way out of `sdslam run` leaves a complete, consistent set of outputs: runs ended at
 //! random frames (right after initialisation included) and by random signals at random times,
 //! a file size limit, injected writer failures, a closed stderr and a full stdout. Each run's
-//! outputs must parse and agree with each other (report.json's counts against the files).
+//! outputs must parse and agree with each other (report.json's counts against the files,
+//! and the MCAP file of the run against both).
 
 mod common;
 
@@ -35,7 +36,8 @@ fn run_cmd(out: &Path, extra: &[&str]) -> Command {
         .arg(sequence())
         .arg("--out")
         .arg(out)
-        .args(["--no-plots"])
+        .args(["--no-plots", "--mcap"])
+        .arg(out.join("run.mcap"))
         .args(extra)
         .env_remove("RUST_BACKTRACE")
         .env_remove("SDSLAM_FAULT");
@@ -79,7 +81,62 @@ fn check_outputs(out: &Path) -> serde_json::Value {
             p.timestamp
         );
     }
+    check_mcap(out, &report, traj.len(), kfs.len(), cloud.len());
     report
+}
+
+/// The run's MCAP file is finished (summary with every channel's schema) and says what the
+/// other outputs say: a status per frame, the final trajectory, keyframes and cloud.
+fn check_mcap(out: &Path, report: &serde_json::Value, poses: usize, kfs: usize, points: usize) {
+    use foxglove::messages::{PointCloud, PosesInFrame};
+    use foxglove::Decode;
+    use sdslam_camera::mcap::format as mcap;
+    let path = out.join("run.mcap");
+    let buf = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let summary = mcap::Summary::read(&buf)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .unwrap_or_else(|| panic!("{}: no summary (not finished)", path.display()));
+    for ch in summary.channels.values() {
+        assert!(
+            ch.schema.is_some(),
+            "{}: channel {} has no schema",
+            path.display(),
+            ch.topic
+        );
+    }
+    let mut status = 0;
+    let (mut traj, mut keyframes, mut cloud) = (None, None, None);
+    for m in mcap::MessageStream::new(&buf).unwrap() {
+        let m = m.unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        match m.channel.topic.as_str() {
+            "/sdslam/tracking" => {
+                let s: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+                assert!(s["state"].is_string(), "{s}");
+                status += 1;
+            }
+            "/sdslam/trajectory" => traj = Some(PosesInFrame::decode(&m.data[..]).unwrap()),
+            "/sdslam/keyframes" => keyframes = Some(PosesInFrame::decode(&m.data[..]).unwrap()),
+            "/sdslam/semidense" => cloud = Some(PointCloud::decode(&m.data[..]).unwrap()),
+            _ => {}
+        }
+    }
+    assert_eq!(
+        Some(status),
+        report["frames"].as_u64(),
+        "status messages vs frames"
+    );
+    assert_eq!(traj.expect("a final trajectory").poses.len(), poses);
+    assert_eq!(keyframes.expect("keyframes").poses.len(), kfs);
+    let cloud = cloud.expect("a semi-dense cloud");
+    assert_eq!(cloud.data.len(), points * cloud.point_stride as usize);
+    assert!(
+        !out.read_dir()
+            .unwrap()
+            .flatten()
+            .any(|e| e.file_name().to_string_lossy().contains(".tmp")),
+        "a temporary file is left in {}",
+        out.display()
+    );
 }
 
 /// A small deterministic generator (the cases are random but reproducible).
@@ -226,16 +283,29 @@ fn a_file_size_limit_fails_the_big_outputs_and_keeps_the_others() {
         .arg("--out")
         .arg(&out)
         .arg("--no-plots")
+        .arg("--mcap")
+        .arg(out.join("run.mcap"))
         .env_remove("SDSLAM_FAULT")
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&st.stderr);
     assert_eq!(st.status.code(), Some(1), "{:?}\n{err}", st.status);
-    assert!(
-        err.contains("semidense.ply not written") && err.contains("File too large"),
-        "{err}"
-    );
+    for big in ["semidense.ply", "mcap"] {
+        assert!(
+            err.contains(&format!("{big} not written")) && err.contains("File too large"),
+            "{err}"
+        );
+    }
     assert!(!out.join("semidense.ply").exists());
+    // No unfinished MCAP, under its name or a temporary one.
+    assert_eq!(
+        std::fs::read_dir(&out)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().contains("mcap"))
+            .count(),
+        0
+    );
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     let traj = sdslam::io::read_tum_trajectory(&out.join("trajectory.txt")).unwrap();
@@ -251,7 +321,15 @@ fn an_injected_writer_failure_is_reported_and_the_other_outputs_are_written() {
         "keyframes.txt",
         "report.json",
         "semidense.ply",
+        "mcap",
     ];
+    fn file(name: &str) -> &str {
+        if name == "mcap" {
+            "run.mcap"
+        } else {
+            name
+        }
+    }
     for failing in all {
         let out = out_dir(&format!("fault-{failing}"));
         let st = run_cmd(&out, &["--frames", "40"])
@@ -268,7 +346,7 @@ fn an_injected_writer_failure_is_reported_and_the_other_outputs_are_written() {
         assert!(err.contains(&format!("{failing} not written")), "{err}");
         for name in all {
             assert_eq!(
-                out.join(name).exists(),
+                out.join(file(name)).exists(),
                 name != failing,
                 "{name} with {failing} failing"
             );

@@ -34,6 +34,7 @@ mod config_cmd;
 mod densify;
 mod eval;
 mod features;
+mod foxglove_out;
 mod html;
 mod plots;
 mod record;

@@ -66,6 +66,18 @@ pub struct RunArgs {
     /// Record the run for Rerun to FILE.rrd (a build with `--features rerun`).
     #[arg(long, value_name = "FILE")]
     rerun_save: Option<PathBuf>,
+    /// Write the run to FILE.mcap with Foxglove's well-known schemas: camera pose and `/tf`
+    /// per frame, keyframes, the sparse map, the semi-dense cloud(s), tracking state and timing.
+    /// Written as the run goes and finished (renamed into place) on every way out.
+    #[arg(long, value_name = "FILE")]
+    pub mcap: Option<PathBuf>,
+    /// Put the camera images in the MCAP file and the live view too (`/camera/image`).
+    #[arg(long)]
+    pub mcap_images: bool,
+    /// Serve the run live over Foxglove's WebSocket protocol on HOST:PORT (a build with
+    /// `--features foxglove`); open Foxglove and connect to ws://HOST:PORT.
+    #[arg(long, value_name = "HOST:PORT", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove: Option<String>,
     /// Do not draw trajectory.png, cloud.png and timing.png.
     #[arg(long)]
     no_plots: bool,
@@ -97,6 +109,9 @@ impl RunArgs {
             rerun: false,
             rerun_save: None,
             localize_only: false,
+            mcap: None,
+            mcap_images: false,
+            foxglove: None,
         }
     }
 }

@@ -109,6 +109,7 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
         v.cloud(t, &cloud);
     }
     s.outputs.write("semidense.ply", |p| write_ply(p, &cloud));
+    finish_publishing(s, r, &trajectory, &keyframes, &cloud, online.as_deref());
     r.report.semidense_points = cloud.len();
     if s.config.semidense.enabled {
         let c = &s.config.semidense;
@@ -192,6 +193,38 @@ pub fn write(mut s: Session, mut r: Running, f: Finished) -> Result<RunOutcome> 
         latencies_ms: r.frame_timer.samples_ms().to_vec(),
         report: r.report,
     })
+}
+
+/// The final keyframes and clouds on the Foxglove channels, then the MCAP file finished
+/// (a failure is one more failed output) and the live server stopped.
+fn finish_publishing(
+    s: &mut Session,
+    r: &mut Running,
+    trajectory: &[TimedPose],
+    keyframes: &[TimedPose],
+    cloud: &[CloudPoint],
+    online: Option<&[CloudPoint]>,
+) {
+    let Some(publish) = r.publish.take() else {
+        return;
+    };
+    let t = trajectory.last().map_or(0.0, |k| k.timestamp);
+    publish.trajectory(t, trajectory);
+    publish.keyframes(t, keyframes);
+    publish.map_points(t, &r.system);
+    publish.cloud(t, cloud, false);
+    if let Some(online) = online {
+        publish.cloud(t, online, true);
+    }
+    let (tmp, finished) = publish.finish();
+    if let (Some(path), Some(tmp)) = (s.args.mcap.clone(), tmp) {
+        s.outputs.write_at("mcap", &path, |p| {
+            finished?;
+            std::fs::rename(&tmp, p).map_err(|e| sdslam::Error::io(p, e))
+        });
+        // Not there after the rename; an unfinished file when finishing or renaming failed.
+        let _ = std::fs::remove_file(&tmp);
+    }
 }
 
 /// The map file, encoded and written atomically.

@@ -83,6 +83,9 @@ fn process(s: &Session, r: &mut Running, frame: &Frame) {
         );
     }
     r.report.frames += 1;
+    if let Some(p) = &r.publish {
+        p.frame(frame, &out, ms, &r.system);
+    }
     #[cfg(feature = "rerun")]
     show(r, frame, &out);
     if let Some(pb) = &r.progress {

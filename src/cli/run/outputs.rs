@@ -168,7 +168,7 @@ fn remove_if_present(p: &Path) -> Result<()> {
 }
 
 /// `path` can be created: not a folder, its folder exists and accepts a new file.
-fn check_writable_file(path: &Path, option: &str) -> Result<()> {
+pub fn check_writable_file(path: &Path, option: &str) -> Result<()> {
     if path.is_dir() {
         return Err(Error::Invalid(format!(
             "{option} {}: is a folder; give a file name",

@@ -40,6 +40,8 @@ pub struct Running {
     #[cfg(feature = "rerun")]
     pub viewer: Option<crate::viewer::Viewer>,
     pub progress: Option<indicatif::ProgressBar>,
+    /// `--mcap` / `--foxglove`: the run's Foxglove channels.
+    pub publish: Option<crate::foxglove_out::Publisher>,
 }
 
 /// Stage 1: everything that can be refused before any work (bad config, unusable output
@@ -61,6 +63,9 @@ pub fn open(args: RunArgs) -> Result<(Session, Box<dyn FrameSource>)> {
         args.frames,
         &args.camera,
     )?;
+    if let Some(p) = &args.mcap {
+        super::outputs::check_writable_file(p, "--mcap")?;
+    }
     crate::signal::install();
     crate::check_memory(&opened.calibration, &config)?;
     // Ground truth beside the outputs, so `sdslam eval ate OUT/groundtruth.txt OUT/keyframes.txt`
@@ -142,6 +147,12 @@ pub fn start(s: &Session, source: Box<dyn FrameSource>) -> Result<(Running, Box<
             "--rerun needs a build with the viewer: cargo build --release --features rerun".into(),
         ));
     }
+    let publish = crate::foxglove_out::Publisher::open(
+        s.args.mcap.as_deref(),
+        s.args.foxglove.as_deref(),
+        s.args.mcap_images,
+        &s.calib,
+    )?;
     let mut pacing_stats = None;
     let source: Box<dyn FrameSource> = match s.pacing {
         Some(p) => {
@@ -166,6 +177,7 @@ pub fn start(s: &Session, source: Box<dyn FrameSource>) -> Result<(Running, Box<
         #[cfg(feature = "rerun")]
         viewer,
         progress: progress_bar(s.info.len),
+        publish,
     };
     Ok((running, source))
 }
