@@ -205,18 +205,14 @@ fn finish_publishing(
     cloud: &[CloudPoint],
     online: Option<&[CloudPoint]>,
 ) {
-    let Some(publish) = r.publish.take() else {
+    let Some(mut publish) = r.publish.take() else {
         return;
     };
-    let t = trajectory.last().map_or(0.0, |k| k.timestamp);
-    publish.trajectory(t, trajectory);
-    publish.keyframes(t, keyframes);
-    publish.map_points(t, &r.system);
-    publish.cloud(t, cloud, false);
-    if let Some(online) = online {
-        publish.cloud(t, online, true);
+    publish.end_of_run(trajectory, keyframes, &r.system, cloud, online);
+    let (tmp, finished, dropped) = publish.finish();
+    if dropped > 0 {
+        note!("warning: {dropped} messages left out of the MCAP file / live view (the writer fell behind)");
     }
-    let (tmp, finished) = publish.finish();
     if let (Some(path), Some(tmp)) = (s.args.mcap.clone(), tmp) {
         s.outputs.write_at("mcap", &path, |p| {
             finished?;

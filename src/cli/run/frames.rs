@@ -83,7 +83,7 @@ fn process(s: &Session, r: &mut Running, frame: &Frame) {
         );
     }
     r.report.frames += 1;
-    if let Some(p) = &r.publish {
+    if let Some(p) = &mut r.publish {
         p.frame(frame, &out, ms, &r.system);
     }
     #[cfg(feature = "rerun")]

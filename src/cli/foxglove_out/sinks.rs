@@ -1,9 +1,5 @@
-//! The run as Foxglove channels: written to an MCAP file (`--mcap OUT.mcap`) and, in a build
-//! with `--features foxglove`, served live over Foxglove's WebSocket protocol (`--foxglove`).
-//! Every channel uses a Foxglove well-known schema (protobuf, from the official SDK) except
-//! the tracking status, which is JSON with its JSON Schema; opening the file in Foxglove shows
-//! the run after choosing the panels (3D: `/tf`, `/sdslam/keyframes`, the clouds; Plot:
-//! `/sdslam/tracking`; Image: `/camera/image`).
+//! The writer thread's end: the Foxglove context with its channels and sinks (the MCAP file,
+//! the live server), and the messages built from a [`Job`].
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -14,12 +10,12 @@ use foxglove::messages::{
 };
 use foxglove::{Channel, Context, McapWriterHandle, PartialMetadata, RawChannel, Schema};
 
-use sdslam::camera::Frame;
+use sdslam::camera::mcap::write::to_ns;
 use sdslam::camera_model::Calibration;
-use sdslam::eval::TimedPose;
 use sdslam::geometry::{CloudPoint, WorldFromCamera};
-use sdslam::runtime::FrameResult;
 use sdslam::{Error, Result};
+
+use super::{FrameJob, Job};
 
 /// The tracking status channel's JSON Schema (the one non-Foxglove schema).
 const STATUS_SCHEMA: &str = r#"{
@@ -39,34 +35,30 @@ const STATUS_SCHEMA: &str = r#"{
   }
 }"#;
 
+/// One frame's tracking status (`/sdslam/tracking`, JSON).
 #[derive(serde::Serialize)]
-struct Status<'a> {
-    frame: u64,
-    state: String,
-    degraded: Option<String>,
-    map: Option<u32>,
-    new_keyframe: bool,
-    latency_ms: f64,
-    inliers: Option<usize>,
-    centre_sigma_m: Option<f64>,
-    keyframes: usize,
-    map_points: usize,
-    #[serde(skip)]
-    _p: std::marker::PhantomData<&'a ()>,
+pub struct Status {
+    pub frame: u64,
+    pub state: String,
+    pub degraded: Option<String>,
+    pub map: Option<u32>,
+    pub new_keyframe: bool,
+    pub latency_ms: f64,
+    pub inliers: Option<usize>,
+    pub centre_sigma_m: Option<f64>,
+    pub keyframes: usize,
+    pub map_points: usize,
 }
 
+type McapFile = McapWriterHandle<std::io::BufWriter<std::fs::File>>;
+
 /// The channels of a run and the sinks they go to.
-pub struct Publisher {
-    /// Owns the sinks the channels log to (the MCAP writer, the server).
+pub struct Sinks {
+    /// Owns the sinks the channels log to.
     _ctx: Arc<Context>,
-    mcap: Option<(
-        McapWriterHandle<std::io::BufWriter<std::fs::File>>,
-        PathBuf,
-        PathBuf,
-    )>,
+    mcap: Option<(McapFile, PathBuf, PathBuf)>,
     #[cfg(feature = "foxglove")]
     server: Option<foxglove::WebSocketServerHandle>,
-    images: bool,
     pose: Channel<PoseInFrame>,
     tf: Channel<FrameTransform>,
     keyframes: Channel<PosesInFrame>,
@@ -78,17 +70,14 @@ pub struct Publisher {
     calibration: Channel<CameraCalibration>,
     status: Arc<RawChannel>,
     calib_msg: CameraCalibration,
-    /// Frames published so far (the calibration goes with the first and every keyframe, so a
-    /// live viewer connecting late gets it too).
-    frames: std::cell::Cell<u64>,
 }
 
 fn err(what: &str, e: impl std::fmt::Display) -> Error {
     Error::Invalid(format!("{what}: {e}"))
 }
 
-fn stamp(t: f64) -> Timestamp {
-    let ns = sdslam::camera::mcap::write::to_ns(t);
+pub fn stamp(t: f64) -> Timestamp {
+    let ns = to_ns(t);
     Timestamp::new((ns / 1_000_000_000) as u32, (ns % 1_000_000_000) as u32)
 }
 
@@ -110,25 +99,26 @@ fn pose_of(t_wc: &WorldFromCamera) -> Pose {
     }
 }
 
-impl Publisher {
-    /// Opens the sinks: the MCAP file (written to a temporary name, renamed by `close`) and
-    /// the live server. `None` when neither is asked for.
+impl Sinks {
+    /// The MCAP file (zstd chunks; lz4 with images, whose zstd compression costs ~14 ms a
+    /// 640x480 frame against ~4 ms) under a temporary name, the live server, the channels.
     pub fn open(
         mcap: Option<&Path>,
         live: Option<&str>,
         images: bool,
         calib: &Calibration,
-    ) -> Result<Option<Publisher>> {
-        if mcap.is_none() && live.is_none() {
-            return Ok(None);
-        }
+    ) -> Result<Sinks> {
         let ctx = Context::new();
         let mcap = match mcap {
             Some(path) => {
                 let tmp = temporary_name(path)?;
                 let _ = std::fs::remove_file(&tmp);
-                let opts = foxglove::McapWriteOptions::new()
-                    .compression(Some(foxglove::McapCompression::Zstd));
+                let compression = if images {
+                    foxglove::McapCompression::Lz4
+                } else {
+                    foxglove::McapCompression::Zstd
+                };
+                let opts = foxglove::McapWriteOptions::new().compression(Some(compression));
                 let handle = ctx
                     .mcap_writer_with_options(opts)
                     .create_new_buffered_file(&tmp)
@@ -172,7 +162,7 @@ impl Publisher {
                 c.fx, 0.0, c.cx, 0.0, 0.0, c.fy, c.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
             ],
         };
-        Ok(Some(Publisher {
+        Ok(Sinks {
             pose: ctx.channel_builder("/sdslam/camera_pose").build(),
             tf: ctx.channel_builder("/tf").build(),
             keyframes: ctx.channel_builder("/sdslam/keyframes").build(),
@@ -184,37 +174,51 @@ impl Publisher {
             calibration: ctx.channel_builder("/camera/calibration").build(),
             status,
             calib_msg,
-            frames: std::cell::Cell::new(0),
             _ctx: ctx,
             mcap,
             #[cfg(feature = "foxglove")]
             server,
-            images,
-        }))
+        })
     }
 
-    /// One frame: the calibration (first frame and keyframes), the pose and transform when tracked, the
-    /// status, the image on request, and on a new keyframe the keyframes and the sparse map.
-    pub fn frame(
-        &self,
-        frame: &Frame,
-        out: &FrameResult,
-        latency_ms: f64,
-        system: &sdslam::runtime::System,
-    ) {
-        let t = frame.timestamp;
-        let ns = sdslam::camera::mcap::write::to_ns(t);
-        let first = self.frames.replace(self.frames.get() + 1) == 0;
-        if first || out.new_keyframe {
+    /// Logs one job's messages.
+    pub fn log(&mut self, job: Job) {
+        match job {
+            Job::Frame(f) => self.frame(*f),
+            Job::Keyframes { t, poses } => self
+                .keyframes
+                .log_with_time(&poses_msg(t, &poses), to_ns(t)),
+            Job::Trajectory { t, poses } => self
+                .trajectory
+                .log_with_time(&poses_msg(t, &poses), to_ns(t)),
+            Job::MapPoints { t, points } => {
+                let msg = cloud_msg(t, points.iter().map(|p| (*p, None, None)));
+                self.map_points.log_with_time(&msg, to_ns(t));
+            }
+            Job::Cloud { t, points, online } => {
+                let msg = cloud_msg(t, points.iter().map(cloud_point));
+                let ch = if online {
+                    &self.semidense_online
+                } else {
+                    &self.semidense
+                };
+                ch.log_with_time(&msg, to_ns(t));
+            }
+        }
+    }
+
+    fn frame(&mut self, f: FrameJob) {
+        let ns = to_ns(f.t);
+        if f.calibration {
             let mut m = self.calib_msg.clone();
-            m.timestamp = Some(stamp(t));
+            m.timestamp = Some(stamp(f.t));
             self.calibration.log_with_time(&m, ns);
         }
-        if let Some(t_wc) = &out.t_wc {
+        if let Some(t_wc) = &f.t_wc {
             let pose = pose_of(t_wc);
             self.tf.log_with_time(
                 &FrameTransform {
-                    timestamp: Some(stamp(t)),
+                    timestamp: Some(stamp(f.t)),
                     parent_frame_id: "world".into(),
                     child_frame_id: "camera".into(),
                     translation: pose.position,
@@ -224,115 +228,31 @@ impl Publisher {
             );
             self.pose.log_with_time(
                 &PoseInFrame {
-                    timestamp: Some(stamp(t)),
+                    timestamp: Some(stamp(f.t)),
                     frame_id: "world".into(),
                     pose: Some(pose),
                 },
                 ns,
             );
         }
-        let (keyframes, map_points) = system.map_size();
-        let status = Status {
-            frame: frame.index,
-            state: format!("{:?}", out.state),
-            degraded: out.degraded.map(|d| format!("{d:?}")),
-            map: out.map,
-            new_keyframe: out.new_keyframe,
-            latency_ms,
-            inliers: out.quality.as_ref().map(|q| q.inliers),
-            centre_sigma_m: out.quality.as_ref().map(|q| q.centre_sigma),
-            keyframes,
-            map_points,
-            _p: std::marker::PhantomData,
-        };
-        if let Ok(json) = serde_json::to_vec(&status) {
+        if let Ok(json) = serde_json::to_vec(&f.status) {
             self.status
                 .log_with_meta(&json, PartialMetadata { log_time: Some(ns) });
         }
-        if self.images {
-            let (data, encoding, step) = if frame.has_color {
-                (&frame.rgb, "rgb8", frame.width * 3)
-            } else {
-                (&frame.gray, "mono8", frame.width)
-            };
-            self.image.log_with_time(
-                &RawImage {
-                    timestamp: Some(stamp(t)),
-                    frame_id: "camera".into(),
-                    width: frame.width,
-                    height: frame.height,
-                    encoding: encoding.into(),
-                    step,
-                    data: foxglove::bytes::Bytes::copy_from_slice(data),
-                },
-                ns,
-            );
-        }
-        if out.new_keyframe {
-            self.keyframes(t, &system.keyframe_trajectory());
-            self.map_points(t, system);
+        if let Some(image) = &f.image {
+            self.image.log_with_time(image, ns);
         }
     }
 
-    /// The sparse map as it is now.
-    pub fn map_points(&self, t: f64, system: &sdslam::runtime::System) {
-        let map = system.map();
-        let msg = cloud_xyz(
-            t,
-            map.points()
-                .map(|(_, p)| (p.position.map(|v| v as f32).into(), None, None)),
-        );
-        self.map_points
-            .log_with_time(&msg, sdslam::camera::mcap::write::to_ns(t));
-    }
-
-    /// The keyframe trajectory as it is now (BA and loop closure move it).
-    pub fn keyframes(&self, t: f64, kfs: &[TimedPose]) {
-        self.keyframes.log_with_time(
-            &PosesInFrame {
-                timestamp: Some(stamp(t)),
-                frame_id: "world".into(),
-                poses: kfs.iter().map(|k| pose_of(&k.t_wc)).collect(),
-            },
-            sdslam::camera::mcap::write::to_ns(t),
-        );
-    }
-
-    /// A semi-dense cloud (the final one on `/sdslam/semidense`, the online one beside it when
-    /// the end-of-session reconstruction replaced it), with colour and sigma fields.
-    pub fn cloud(&self, t: f64, cloud: &[CloudPoint], online: bool) {
-        let msg = cloud_xyz(
-            t,
-            cloud
-                .iter()
-                .map(|p| (p.position, Some(p.rgb), Some(p.sigma))),
-        );
-        let ch = if online {
-            &self.semidense_online
-        } else {
-            &self.semidense
-        };
-        ch.log_with_time(&msg, sdslam::camera::mcap::write::to_ns(t));
-    }
-
-    /// The run's final trajectory (every tracked frame, after the last BA and loop closure).
-    pub fn trajectory(&self, t: f64, poses: &[TimedPose]) {
-        self.trajectory.log_with_time(
-            &PosesInFrame {
-                timestamp: Some(stamp(t)),
-                frame_id: "world".into(),
-                poses: poses.iter().map(|k| pose_of(&k.t_wc)).collect(),
-            },
-            sdslam::camera::mcap::write::to_ns(t),
-        );
-    }
-
-    /// Stops the server and finishes the MCAP file under its temporary name (summary, sync).
-    /// Returns that file, for the caller to rename into place, and how finishing went.
+    /// Stops the server (after a moment for connected viewers to receive the final map and
+    /// cloud) and finishes the MCAP file under its temporary name (summary, sync).
     pub fn finish(mut self) -> (Option<PathBuf>, Result<()>) {
         #[cfg(feature = "foxglove")]
         if let Some(s) = self.server.take() {
-            let _ = s.stop();
+            if s.client_count() > 0 {
+                std::thread::sleep(std::time::Duration::from_secs(2));
+            }
+            s.stop().wait_blocking();
         }
         let Some((handle, tmp, path)) = self.mcap.take() else {
             return (None, Ok(()));
@@ -347,14 +267,16 @@ impl Publisher {
     }
 }
 
-/// A run that ends before `finish` (an error while starting) leaves no temporary file.
-impl Drop for Publisher {
-    fn drop(&mut self) {
-        if let Some((handle, tmp, _)) = self.mcap.take() {
-            drop(handle);
-            let _ = std::fs::remove_file(tmp);
-        }
+fn poses_msg(t: f64, poses: &[WorldFromCamera]) -> PosesInFrame {
+    PosesInFrame {
+        timestamp: Some(stamp(t)),
+        frame_id: "world".into(),
+        poses: poses.iter().map(pose_of).collect(),
     }
+}
+
+fn cloud_point(p: &CloudPoint) -> ([f32; 3], Option<[u8; 3]>, Option<f32>) {
+    (p.position, Some(p.rgb), Some(p.sigma))
 }
 
 /// `.NAME.tmpPID` beside `path`: the file is only renamed to `path` once complete.
@@ -375,7 +297,7 @@ fn temporary_name(path: &Path) -> Result<PathBuf> {
 
 /// A `foxglove.PointCloud` in the world frame: x, y, z (float32), then red, green, blue,
 /// alpha (uint8) and sigma (float32) when given.
-fn cloud_xyz(
+fn cloud_msg(
     t: f64,
     points: impl Iterator<Item = ([f32; 3], Option<[u8; 3]>, Option<f32>)>,
 ) -> PointCloud {
