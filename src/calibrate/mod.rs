@@ -69,10 +69,7 @@ pub struct CalibrationResult {
 
 impl CalibrationResult {
     pub fn calibration(&self, fps: f64) -> Calibration {
-        Calibration {
-            camera: self.camera,
-            fps,
-        }
+        Calibration::pinhole(self.camera, fps)
     }
 }
 

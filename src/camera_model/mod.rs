@@ -1,11 +1,16 @@
-//! Camera model: pinhole with radial-tangential distortion, its calibration files, and the
-//! rectification map that produces undistorted images.
+//! Camera models: pinhole with radial-tangential distortion and Kannala-Brandt fisheye, their
+//! calibration files, and the rectification map that resamples raw frames into the
+//! undistorted pinhole view every stage works in.
 
 mod calibration;
+mod kannala_brandt;
+mod lens;
 mod pinhole;
 mod rectify;
 pub mod yaml;
 
 pub use calibration::{CalibError, Calibration};
+pub use kannala_brandt::KannalaBrandt;
+pub use lens::{CameraModel, Lens};
 pub use pinhole::PinholeRadtan;
 pub use rectify::{FrameRectifier, RectifyMap};

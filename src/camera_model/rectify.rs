@@ -1,10 +1,11 @@
-//! Rectification map: built once per calibration, then remaps every distorted image into the
-//! undistorted pinhole geometry (same K) with bilinear interpolation, into a caller buffer.
+//! Rectification map: built once per calibration, then remaps every raw image into the
+//! undistorted pinhole view (the same K for a pinhole lens, the chosen view for a fisheye)
+//! with bilinear interpolation, into a caller buffer.
 
-use super::PinholeRadtan;
+use super::{Calibration, CameraModel, PinholeRadtan};
 
-/// Undistorts whole frames into one reused buffer; a distortion-free camera's frames pass
-/// through untouched. The one rectification step of every frame consumer
+/// Resamples whole frames into the pinhole view, into one reused buffer; a distortion-free
+/// pinhole camera's frames pass through untouched. The one rectification step of every frame consumer
 /// ([`crate::runtime::System::process_frame`], `sdslam densify`).
 pub struct FrameRectifier {
     map: Option<RectifyMap>,
@@ -12,9 +13,14 @@ pub struct FrameRectifier {
 }
 
 impl FrameRectifier {
-    pub fn new(camera: &PinholeRadtan) -> Self {
+    pub fn new(calib: &Calibration) -> Self {
+        let camera = &calib.camera;
+        let map = match &calib.fisheye {
+            Some(lens) => Some(RectifyMap::between(camera, lens)),
+            None => (!camera.is_distortion_free()).then(|| RectifyMap::new(camera)),
+        };
         FrameRectifier {
-            map: (!camera.is_distortion_free()).then(|| RectifyMap::new(camera)),
+            map,
             out: sdslam_camera::Frame::new(camera.width, camera.height),
         }
     }
@@ -49,14 +55,22 @@ pub struct RectifyMap {
 impl RectifyMap {
     /// Builds the map of `camera` (the output uses the same K without distortion).
     pub fn new(camera: &PinholeRadtan) -> Self {
-        let (w, h) = (camera.width, camera.height);
+        Self::between(&camera.undistorted(), camera)
+    }
+
+    /// Builds the map from raw images of `lens` into the pinhole `view` (same size): each
+    /// view pixel's ray, projected through the lens.
+    pub fn between(view: &PinholeRadtan, lens: &impl CameraModel) -> Self {
+        let (w, h) = (view.width, view.height);
         let n = w as usize * h as usize;
         let mut index = vec![u32::MAX; n];
         let mut weights = vec![[0u32; 4]; n];
         for y in 0..h {
             for x in 0..w {
-                let d = camera.distort_pixel(x as f64, y as f64);
                 let i = (y * w + x) as usize;
+                let Some(d) = lens.project_raw(&view.unproject(x as f64, y as f64)) else {
+                    continue;
+                };
                 if d.x < 0.0 || d.y < 0.0 || d.x > (w - 1) as f64 || d.y > (h - 1) as f64 {
                     continue;
                 }

@@ -102,7 +102,7 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
     let calib = opened.calibration.clone();
     let info = opened.source.info().clone();
     let camera = calib.camera.undistorted();
-    let mut rectifier = FrameRectifier::new(&calib.camera);
+    let mut rectifier = FrameRectifier::new(&calib);
     let max_kf = match &chosen {
         Some(k) => k.len() + 2,
         None => info.len.unwrap_or(100_000) / a.every + 2,
@@ -190,7 +190,7 @@ pub fn densify(a: DensifyArgs) -> Result<()> {
                 report.semidense_accuracy = Some(sdslam::eval::cloud_accuracy(
                     &cloud,
                     &alignment,
-                    &calib.camera,
+                    &calib.lens(),
                     &frames,
                 ));
             }

@@ -197,13 +197,14 @@ fn cloud(a: CloudArgs) -> Result<()> {
     // The evaluation protocol's alignment: keyframe centres plus axis points (positions alone
     // leave the rotation about a near-straight path free).
     let align = sdslam::eval::pose_alignment(&gt, &est, 0.02).unwrap_or(align.alignment);
-    let r = cloud_accuracy(&points, &align, cam, &frames);
+    let lens = calib.lens();
+    let r = cloud_accuracy(&points, &align, &lens, &frames);
     if a.per_keyframe {
         let mut start = 0;
         while start < points.len() {
             let t = points[start].timestamp;
             let end = start + points[start..].partition_point(|p| p.timestamp == t);
-            let k = cloud_accuracy(&points[start..end], &align, cam, &frames);
+            let k = cloud_accuracy(&points[start..end], &align, &lens, &frames);
             out!(
                 "keyframe {t:.6}: {:6} points, median {}, within 2% {:.1}%, beyond 10% {:.2}%",
                 k.points,

@@ -160,15 +160,20 @@ impl DepthTruth {
     }
 }
 
-/// The built-in sequence, or one of its stress scenes (`synthetic:NAME`).
+/// The built-in sequence, or one of its stress scenes (`synthetic:NAME`), through the
+/// pinhole camera or a fisheye lens (`synthetic:fisheye`, `synthetic:NAME,fisheye`).
 fn open_synthetic(
     scene: Option<&str>,
     calib: Option<&Path>,
     frames: Option<usize>,
 ) -> Result<OpenedSource> {
     let mut cfg = SyntheticConfig::default();
-    if let Some(name) = scene {
-        cfg.scenario = Scenario::from_name(name).map_err(Error::Invalid)?;
+    for part in scene.into_iter().flat_map(|s| s.split(',')) {
+        if part == "fisheye" {
+            cfg.fisheye = true;
+        } else {
+            cfg.scenario = Scenario::from_name(part).map_err(Error::Invalid)?;
+        }
     }
     if let Some(n) = frames {
         cfg.frames = n.min(cfg.frames);
@@ -323,19 +328,38 @@ fn open_mcap(
 }
 
 /// A ROS `CameraInfo` as a calibration: `plumb_bob` / `rational_polynomial` (k4..k6 zero) are
-/// the pinhole radial-tangential model; an empty `d` means no distortion.
+/// the pinhole radial-tangential model, `equidistant` the Kannala-Brandt fisheye (`d` = k1..k4);
+/// an empty `d` means no distortion.
 pub fn calibration_from_camera_info(ci: &CameraInfo, name: &str) -> Result<Calibration> {
     let bad = |m: String| Error::Invalid(format!("{name}: {m}"));
     let d = &ci.d;
     let model = ci.distortion_model.as_str();
+    let k = &ci.k;
+    if !(k[0] > 0.0 && k[4] > 0.0) || k.iter().any(|v| !v.is_finite()) {
+        return Err(bad(format!("K {k:?} has no positive focal lengths")));
+    }
+    let at = |i: usize| d.get(i).copied().unwrap_or(0.0);
     match model {
         "plumb_bob" | "rational_polynomial" | "" => {}
         "equidistant" | "fisheye" | "kannala_brandt" => {
-            return Err(bad(format!(
-                "distortion model `{model}` (fisheye) is not supported yet; pass a pinhole --calib of rectified images"
-            )))
+            if d.len() > 4 || d.iter().any(|v| !v.is_finite()) {
+                return Err(bad(format!("equidistant distortion {d:?}: expected k1..k4")));
+            }
+            let lens = sdslam::camera_model::KannalaBrandt {
+                fx: k[0],
+                fy: k[4],
+                cx: k[2],
+                cy: k[5],
+                k1: at(0),
+                k2: at(1),
+                k3: at(2),
+                k4: at(3),
+                width: ci.width,
+                height: ci.height,
+            };
+            return Ok(Calibration::fisheye(lens, 30.0));
         }
-        other => return Err(bad(format!("distortion model `{other}` is not supported (plumb_bob, rational_polynomial)"))),
+        other => return Err(bad(format!("distortion model `{other}` is not supported (plumb_bob, rational_polynomial, equidistant)"))),
     }
     if d.iter().skip(5).any(|&v| v != 0.0) {
         return Err(bad(format!(
@@ -343,13 +367,8 @@ pub fn calibration_from_camera_info(ci: &CameraInfo, name: &str) -> Result<Calib
             &d[5..]
         )));
     }
-    let at = |i: usize| d.get(i).copied().unwrap_or(0.0);
-    let k = &ci.k;
-    if !(k[0] > 0.0 && k[4] > 0.0) || k.iter().any(|v| !v.is_finite()) {
-        return Err(bad(format!("K {k:?} has no positive focal lengths")));
-    }
-    Ok(Calibration {
-        camera: PinholeRadtan {
+    Ok(Calibration::pinhole(
+        PinholeRadtan {
             k1: at(0),
             k2: at(1),
             p1: at(2),
@@ -357,12 +376,24 @@ pub fn calibration_from_camera_info(ci: &CameraInfo, name: &str) -> Result<Calib
             k3: at(4),
             ..PinholeRadtan::pinhole(k[0], k[4], k[2], k[5], ci.width, ci.height)
         },
-        fps: 30.0,
-    })
+        30.0,
+    ))
 }
 
-/// A calibration as a ROS `CameraInfo` (`plumb_bob`).
+/// A calibration as a ROS `CameraInfo` (`plumb_bob`, or `equidistant` for a fisheye).
 pub fn camera_info_from_calibration(c: &Calibration) -> CameraInfo {
+    if let Some(k) = &c.fisheye {
+        return CameraInfo {
+            width: k.width,
+            height: k.height,
+            distortion_model: "equidistant".into(),
+            d: vec![k.k1, k.k2, k.k3, k.k4],
+            k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+            p: [
+                k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+            ],
+        };
+    }
     let m = &c.camera;
     CameraInfo {
         width: m.width,

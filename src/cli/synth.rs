@@ -25,6 +25,11 @@ pub struct SynthArgs {
     /// the same scene without writing it.
     #[arg(long, default_value = "desk", value_parser = parse_scene)]
     scene: Scenario,
+    /// Lens: `pinhole` (520 px focal, 63 degrees across) or `fisheye` (Kannala-Brandt, 170
+    /// degrees across, more than 180 across the diagonal; camera.yaml is ORB-SLAM3's
+    /// KannalaBrandt8). Depth maps are in the frames' own (fisheye) geometry.
+    #[arg(long, default_value = "pinhole", value_parser = ["pinhole", "fisheye"])]
+    camera: String,
     /// Write a ground-truth depth map every K frames (0: none).
     #[arg(long, default_value_t = 10)]
     depth_every: usize,
@@ -56,11 +61,8 @@ fn synth_chessboard(out: &std::path::Path) -> Result<()> {
         render_chessboard(&truth, pose, &board, 2.0, 100 + k as u64, &mut img);
         sdslam::io::write_gray_png(&out.join(format!("board_{k:02}.png")), 640, 480, &img)?;
     }
-    let yaml = Calibration {
-        camera: truth,
-        fps: 30.0,
-    }
-    .to_orbslam_yaml("The camera the chessboard views were rendered with.");
+    let yaml = Calibration::pinhole(truth, 30.0)
+        .to_orbslam_yaml("The camera the chessboard views were rendered with.");
     write_atomic(&out.join("truth.yaml"), yaml.as_bytes())
 }
 
@@ -74,6 +76,7 @@ pub fn synth(a: SynthArgs) -> Result<()> {
     let cfg = SyntheticConfig {
         frames: a.frames,
         scenario: a.scene,
+        fisheye: a.camera == "fisheye",
         ..SyntheticConfig::default()
     };
     let seq = SyntheticSequence::new(cfg.clone());
@@ -114,9 +117,11 @@ pub fn synth(a: SynthArgs) -> Result<()> {
     write_atomic(&a.out.join("rgb.txt"), rgb_txt.as_bytes())?;
     write_atomic(&a.out.join("depth.txt"), depth_txt.as_bytes())?;
     write_tum_trajectory(&a.out.join("groundtruth.txt"), &seq.ground_truth())?;
-    let calib = cfg
-        .calibration()
-        .to_orbslam_yaml("sdslam built-in synthetic camera (no distortion)");
+    let calib = cfg.calibration().to_orbslam_yaml(if cfg.fisheye {
+        "sdslam built-in synthetic fisheye (Kannala-Brandt, 170 degrees across)"
+    } else {
+        "sdslam built-in synthetic camera (no distortion)"
+    });
     write_atomic(&a.out.join("camera.yaml"), calib.as_bytes())?;
     out!("wrote {} frames to {}", cfg.frames, a.out.display());
     Ok(())

@@ -6,7 +6,7 @@
 
 use serde::Serialize;
 
-use crate::camera_model::PinholeRadtan;
+use crate::camera_model::CameraModel;
 use crate::geometry::CloudPoint;
 use crate::geometry::{Sim3, WorldFromCamera};
 
@@ -33,15 +33,17 @@ pub struct CloudAccuracy {
     pub points_per_keyframe: f64,
 }
 
-/// Evaluates `points` (estimate frame) against `frames` (sorted by time) seen by `camera`,
-/// with `align` mapping the estimate into the ground-truth frame.
+/// Evaluates `points` (estimate frame) against `frames` (sorted by time) seen by `camera`
+/// (the lens of the raw images the depth maps are registered to), with `align` mapping the
+/// estimate into the ground-truth frame.
 pub fn cloud_accuracy(
     points: &[CloudPoint],
     align: &Sim3,
-    camera: &PinholeRadtan,
+    camera: &impl CameraModel,
     frames: &[DepthFrame],
 ) -> CloudAccuracy {
-    let (w, h) = (camera.width as i64, camera.height as i64);
+    let (w, h) = camera.size();
+    let (w, h) = (w as i64, h as i64);
     let mut errors = Vec::with_capacity(points.len());
     let mut keyframes: Vec<u64> = points.iter().map(|p| p.timestamp.to_bits()).collect();
     keyframes.sort_unstable();
@@ -61,7 +63,10 @@ pub fn cloud_accuracy(
             p.position[2] as f64,
         ));
         let x_c = f.t_wc.inverse().transform(&x_w);
-        let Some(uv) = camera.project(&x_c) else {
+        if x_c.z <= 0.0 {
+            continue;
+        }
+        let Some(uv) = camera.project_raw(&x_c) else {
             continue;
         };
         let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
@@ -136,6 +141,7 @@ fn nearest(frames: &[DepthFrame], t: f64) -> &DepthFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera_model::PinholeRadtan;
 
     #[test]
     fn exact_points_have_zero_error_and_scaled_ones_are_outliers() {

@@ -294,7 +294,7 @@ impl System {
             backfill: Backfill::default(),
             frame: TrackedFrame::new(max_features, w, h),
             trajectory: Vec::with_capacity(expected_frames),
-            rectifier: Some(crate::camera_model::FrameRectifier::new(&calib.camera)),
+            rectifier: Some(crate::camera_model::FrameRectifier::new(calib)),
             young_map_lost_frames: 0,
             collapse: CollapseMonitor::new(&config.tracking, max_features),
             limits: SystemLimits {

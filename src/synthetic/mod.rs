@@ -17,7 +17,7 @@ pub use scene::Scene;
 
 use sdslam_camera::{Frame, FrameSource, FrameStatus, SourceError, SourceInfo};
 
-use crate::camera_model::{Calibration, PinholeRadtan};
+use crate::camera_model::{Calibration, KannalaBrandt, Lens, PinholeRadtan};
 use crate::eval::TimedPose;
 use crate::geometry::WorldFromCamera;
 
@@ -36,6 +36,8 @@ pub struct SyntheticConfig {
     pub t0: f64,
     /// Scene and motion (the default orbit, or a stress scene).
     pub scenario: Scenario,
+    /// Render through a 170-degree fisheye lens instead of the pinhole camera.
+    pub fisheye: bool,
 }
 
 impl Default for SyntheticConfig {
@@ -49,6 +51,7 @@ impl Default for SyntheticConfig {
             noise_sigma: 1.5,
             t0: 1_700_000_000.0,
             scenario: Scenario::Desk,
+            fisheye: false,
         }
     }
 }
@@ -67,10 +70,41 @@ impl SyntheticConfig {
         )
     }
 
+    /// The fisheye lens of `fisheye` sequences: Kannala-Brandt with a 170 degree horizontal
+    /// field (more than 180 degrees across the diagonal) and mild higher-order terms.
+    pub fn fisheye_lens(&self) -> KannalaBrandt {
+        let (w, h) = (self.width as f64, self.height as f64);
+        let mut k = KannalaBrandt {
+            fx: 1.0,
+            fy: 1.0,
+            cx: (w - 1.0) / 2.0,
+            cy: (h - 1.0) / 2.0,
+            k1: -0.012,
+            k2: 0.004,
+            k3: -0.001,
+            k4: 0.0001,
+            width: self.width,
+            height: self.height,
+        };
+        let f = (w / 2.0) / k.theta_d(85f64.to_radians());
+        (k.fx, k.fy) = (f, f);
+        k
+    }
+
+    /// The lens the frames are rendered through.
+    pub fn lens(&self) -> Lens {
+        if self.fisheye {
+            Lens::KannalaBrandt(self.fisheye_lens())
+        } else {
+            Lens::Pinhole(self.camera())
+        }
+    }
+
     pub fn calibration(&self) -> Calibration {
-        Calibration {
-            camera: self.camera(),
-            fps: self.fps,
+        if self.fisheye {
+            Calibration::fisheye(self.fisheye_lens(), self.fps)
+        } else {
+            Calibration::pinhole(self.camera(), self.fps)
         }
     }
 
@@ -94,12 +128,15 @@ impl SyntheticSequence {
         if config.scenario.moving_objects() {
             scene.add_movers(config.seed);
         }
-        let renderer = Renderer::new(scene, config.camera(), config.noise_sigma, config.seed);
+        let renderer = Renderer::new(scene, config.lens(), config.noise_sigma, config.seed);
         let path = CameraPath::new(config.scenario, config.frames);
-        let name = match config.scenario {
+        let mut name = match config.scenario {
             Scenario::Desk => "synthetic".to_string(),
             s => format!("synthetic:{}", s.name()),
         };
+        if config.fisheye {
+            name.push_str(" (fisheye)");
+        }
         let info = SourceInfo {
             name,
             width: config.width,

@@ -12,12 +12,12 @@ use rayon::prelude::*;
 
 use super::scene::Scene;
 use super::texture::mix64;
-use crate::camera_model::PinholeRadtan;
+use crate::camera_model::{CameraModel, Lens};
 use crate::geometry::WorldFromCamera;
 
 pub struct Renderer {
     scene: Scene,
-    camera: PinholeRadtan,
+    camera: Lens,
     noise_sigma: f64,
     seed: u64,
 }
@@ -34,7 +34,7 @@ const SAMPLES: [(f64, f64); 4] = [
 const NO_HIT: u32 = u32::MAX;
 
 impl Renderer {
-    pub fn new(scene: Scene, camera: PinholeRadtan, noise_sigma: f64, seed: u64) -> Self {
+    pub fn new(scene: Scene, camera: Lens, noise_sigma: f64, seed: u64) -> Self {
         Renderer {
             scene,
             camera,
@@ -66,15 +66,16 @@ impl Renderer {
         rgb: &mut [u8],
         depth: Option<&mut [f32]>,
     ) {
-        let w = self.camera.width as usize;
+        let w = self.camera.size().0 as usize;
         let o = t_wc.position();
         let rot = t_wc.0.rotation.to_rotation_matrix();
         let cam = &self.camera;
-        // Unit world ray through (u, v) and the factor turning ray length into planar depth.
+        // Unit world ray through (u, v) and the factor turning ray length into planar depth
+        // (0 for a fisheye's rays at 90 degrees and more from the axis: no planar depth).
         let ray = |u: f64, v: f64| -> (Vector3<f64>, f64) {
-            let d_c = cam.unproject(u, v);
+            let d_c = cam.unproject_raw(u, v);
             let n = d_c.norm();
-            (rot * (d_c / n), 1.0 / n)
+            (rot * (d_c / n), (d_c.z / n).max(0.0))
         };
         // Pass 1: centre rays.
         let mut centre: Vec<([f32; 3], u32, f32)> = vec![([0.0; 3], NO_HIT, 0.0); rgb.len() / 3];

@@ -366,7 +366,7 @@ fn cloud_accuracy(
         Ok(frames) if !frames.is_empty() => Some(sdslam::eval::cloud_accuracy(
             cloud,
             &alignment,
-            &s.calib.camera,
+            &s.calib.lens(),
             &frames,
         )),
         Ok(_) => None,
