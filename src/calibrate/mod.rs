@@ -1,7 +1,7 @@
 //! Camera calibration from chessboard views: detection with sub-pixel corners
 //! ([`chessboard`]), Zhang's closed-form initialisation ([`zhang`]) and Levenberg-Marquardt
-//! refinement of pinhole + radial-tangential parameters ([`refine`]). The result is a
-//! [`Calibration`] that `sdslam run` reads.
+//! refinement ([`refine`]) of pinhole + radial-tangential or Kannala-Brandt fisheye
+//! parameters. The result is a [`Calibration`] that `sdslam run` reads.
 
 pub mod chessboard;
 pub mod refine;
@@ -9,7 +9,7 @@ pub mod zhang;
 
 use nalgebra::{Matrix3, Vector2, Vector3};
 
-use crate::camera_model::{Calibration, PinholeRadtan};
+use crate::camera_model::{Calibration, KannalaBrandt, Lens, PinholeRadtan};
 use crate::geometry::Se3;
 pub use chessboard::{detect, BoardSize, DetectorConfig};
 
@@ -30,9 +30,20 @@ impl Board {
     }
 }
 
+/// The camera model to calibrate.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LensModel {
+    /// Pinhole with radial-tangential distortion (k1 k2 p1 p2 [k3]).
+    #[default]
+    RadialTangential,
+    /// Kannala-Brandt fisheye (k1..k4).
+    KannalaBrandt,
+}
+
 /// Options of the solver.
 #[derive(Clone, Debug)]
 pub struct CalibrateConfig {
+    pub model: LensModel,
     /// Estimate the sixth-order radial term k3 (wide-angle lenses); fixed at 0 otherwise, which
     /// is more stable for ordinary webcams.
     pub estimate_k3: bool,
@@ -45,6 +56,7 @@ pub struct CalibrateConfig {
 impl Default for CalibrateConfig {
     fn default() -> Self {
         CalibrateConfig {
+            model: LensModel::RadialTangential,
             estimate_k3: false,
             max_iterations: 100,
             outlier_view_factor: 3.0,
@@ -55,12 +67,13 @@ impl Default for CalibrateConfig {
 /// The calibration and how well it fits.
 #[derive(Clone, Debug)]
 pub struct CalibrationResult {
-    pub camera: PinholeRadtan,
+    pub camera: Lens,
     /// Reprojection RMS over all kept corners (pixels).
     pub rms_px: f64,
     /// Per input view: its RMS, or `None` when it was dropped as an outlier.
     pub view_rms_px: Vec<Option<f64>>,
-    /// One standard deviation of fx, fy, cx, cy, k1, k2, p1, p2, k3.
+    /// One standard deviation of fx, fy, cx, cy, k1, k2, p1, p2, k3 (radial-tangential) or
+    /// fx, fy, cx, cy, k1, k2, k3, k4, 0 (Kannala-Brandt).
     pub std_dev: [f64; refine::INTRINSICS],
     /// Camera-from-board pose per kept view.
     pub poses: Vec<Se3>,
@@ -69,7 +82,10 @@ pub struct CalibrationResult {
 
 impl CalibrationResult {
     pub fn calibration(&self, fps: f64) -> Calibration {
-        Calibration::pinhole(self.camera, fps)
+        match self.camera {
+            Lens::Pinhole(c) => Calibration::pinhole(c, fps),
+            Lens::KannalaBrandt(k) => Calibration::fisheye(k, fps),
+        }
     }
 }
 
@@ -99,30 +115,10 @@ pub fn calibrate(
         });
     }
     let pts = board.points();
-    let plane: Vec<Vector2<f64>> = pts.iter().map(|p| p.xy()).collect();
-    let hs: Vec<Matrix3<f64>> = usable
-        .iter()
-        .map(|&i| zhang::homography(&plane, &views[i]))
-        .collect::<Option<_>>()
-        .ok_or(CalibrateError::Degenerate)?;
-    let (fx, fy, cx, cy) = zhang::intrinsics(&hs).ok_or(CalibrateError::Degenerate)?;
-    let k = Matrix3::new(fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0);
-    let poses: Vec<Se3> = hs
-        .iter()
-        .map(|h| zhang::pose(h, &k))
-        .collect::<Option<_>>()
-        .ok_or(CalibrateError::Degenerate)?;
     let kept_views: Vec<Vec<Vector2<f64>>> = usable.iter().map(|&i| views[i].clone()).collect();
-    let with_poses: Vec<(Se3, Vec<Vector2<f64>>)> = poses
-        .iter()
-        .cloned()
-        .zip(kept_views.iter().cloned())
-        .collect();
-    let (k1, k2) = zhang::radial_distortion(&with_poses, &pts, (fx, fy, cx, cy));
-    let init = PinholeRadtan {
-        k1,
-        k2,
-        ..PinholeRadtan::pinhole(fx, fy, cx, cy, width, height)
+    let (init, poses) = match cfg.model {
+        LensModel::RadialTangential => initial_pinhole(&pts, &kept_views, width, height)?,
+        LensModel::KannalaBrandt => initial_fisheye(&pts, &kept_views, width, height)?,
     };
 
     let mut kept = usable.clone();
@@ -188,13 +184,81 @@ pub fn calibrate(
     })
 }
 
-/// RMS reprojection error of one view (pixels).
-pub fn view_rms(
-    cam: &PinholeRadtan,
-    pose: &Se3,
+/// Zhang's closed form: intrinsics and poses from the views' homographies, then k1, k2 by
+/// linear least squares.
+fn initial_pinhole(
     pts: &[Vector3<f64>],
-    obs: &[Vector2<f64>],
-) -> f64 {
+    views: &[Vec<Vector2<f64>>],
+    width: u32,
+    height: u32,
+) -> Result<(Lens, Vec<Se3>), CalibrateError> {
+    let plane: Vec<Vector2<f64>> = pts.iter().map(|p| p.xy()).collect();
+    let hs: Vec<Matrix3<f64>> = views
+        .iter()
+        .map(|v| zhang::homography(&plane, v))
+        .collect::<Option<_>>()
+        .ok_or(CalibrateError::Degenerate)?;
+    let (fx, fy, cx, cy) = zhang::intrinsics(&hs).ok_or(CalibrateError::Degenerate)?;
+    let k = Matrix3::new(fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0);
+    let poses: Vec<Se3> = hs
+        .iter()
+        .map(|h| zhang::pose(h, &k))
+        .collect::<Option<_>>()
+        .ok_or(CalibrateError::Degenerate)?;
+    let with_poses: Vec<(Se3, Vec<Vector2<f64>>)> =
+        poses.iter().cloned().zip(views.iter().cloned()).collect();
+    let (k1, k2) = zhang::radial_distortion(&with_poses, pts, (fx, fy, cx, cy));
+    let init = PinholeRadtan {
+        k1,
+        k2,
+        ..PinholeRadtan::pinhole(fx, fy, cx, cy, width, height)
+    };
+    Ok((Lens::Pinhole(init), poses))
+}
+
+/// A fisheye has no homographies to start from (straight lines are curved): start from an
+/// equidistant lens whose 180 degrees span the image's longer side, centred, without
+/// higher-order terms (as OpenCV's fisheye calibration does), take each view's pose from the
+/// homography of its corners' rays under that lens, and let the refinement find the rest.
+fn initial_fisheye(
+    pts: &[Vector3<f64>],
+    views: &[Vec<Vector2<f64>>],
+    width: u32,
+    height: u32,
+) -> Result<(Lens, Vec<Se3>), CalibrateError> {
+    let f = width.max(height) as f64 / std::f64::consts::PI;
+    let lens = KannalaBrandt {
+        fx: f,
+        fy: f,
+        cx: (width as f64 - 1.0) / 2.0,
+        cy: (height as f64 - 1.0) / 2.0,
+        k1: 0.0,
+        k2: 0.0,
+        k3: 0.0,
+        k4: 0.0,
+        width,
+        height,
+    };
+    let plane: Vec<Vector2<f64>> = pts.iter().map(|p| p.xy()).collect();
+    let poses: Vec<Se3> = views
+        .iter()
+        .map(|v| {
+            let rays: Vec<Vector2<f64>> = v
+                .iter()
+                .map(|c| {
+                    let r = lens.unproject(c.x, c.y);
+                    Vector2::new(r.x / r.z.max(0.05), r.y / r.z.max(0.05))
+                })
+                .collect();
+            zhang::pose(&zhang::homography(&plane, &rays)?, &Matrix3::identity())
+        })
+        .collect::<Option<_>>()
+        .ok_or(CalibrateError::Degenerate)?;
+    Ok((Lens::KannalaBrandt(lens), poses))
+}
+
+/// RMS reprojection error of one view (pixels).
+pub fn view_rms(cam: &Lens, pose: &Se3, pts: &[Vector3<f64>], obs: &[Vector2<f64>]) -> f64 {
     let s: f64 = pts
         .iter()
         .zip(obs)
@@ -237,7 +301,7 @@ mod tests {
             let corners = detect(&img, 640, 480, b.size, &DetectorConfig::default())
                 .unwrap_or_else(|| panic!("board not found in view {k}"));
             assert_eq!(corners.len(), 54);
-            let err = view_rms(&cam, pose, &pts, &corners);
+            let err = view_rms(&Lens::Pinhole(cam), pose, &pts, &corners);
             assert!(
                 err < 0.15,
                 "view {k}: corner RMS {err} px against the truth"
@@ -319,7 +383,9 @@ mod end_to_end {
                 views.len()
             );
             let r = calibrate(&views, &b, 640, 480, &CalibrateConfig::default()).unwrap();
-            let c = r.camera;
+            let Lens::Pinhole(c) = r.camera else {
+                panic!("{name}: not a pinhole")
+            };
             eprintln!(
                 "{name}: fx {:.3} fy {:.3} cx {:.3} cy {:.3} k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6}, RMS {:.3} px, {} views, std fx {:.3}",
                 c.fx, c.fy, c.cx, c.cy, c.k1, c.k2, c.p1, c.p2, r.rms_px, views.len(), r.std_dev[0]
@@ -343,5 +409,63 @@ mod end_to_end {
             );
             assert!(r.rms_px < 0.3, "{name}: RMS {}", r.rms_px);
         }
+    }
+
+    #[test]
+    fn recovers_a_fisheye_lens_from_rendered_views() {
+        let truth = crate::synthetic::SyntheticConfig {
+            fisheye: true,
+            ..Default::default()
+        }
+        .fisheye_lens();
+        let lens = Lens::KannalaBrandt(truth);
+        let b = Board {
+            size: BoardSize { cols: 9, rows: 6 },
+            square: 0.025,
+        };
+        let mut img = vec![0u8; 640 * 480];
+        let views: Vec<Vec<Vector2<f64>>> = calibration_poses(&lens, &b, 15, 11)
+            .iter()
+            .enumerate()
+            .filter_map(|(k, pose)| {
+                render_chessboard(&lens, pose, &b, 2.0, 100 + k as u64, &mut img);
+                detect(&img, 640, 480, b.size, &DetectorConfig::default())
+            })
+            .collect();
+        assert!(
+            views.len() >= 10,
+            "board found in {} of 15 views",
+            views.len()
+        );
+        let cfg = CalibrateConfig {
+            model: LensModel::KannalaBrandt,
+            ..CalibrateConfig::default()
+        };
+        let r = calibrate(&views, &b, 640, 480, &cfg).unwrap();
+        let Lens::KannalaBrandt(c) = r.camera else {
+            panic!("not a fisheye")
+        };
+        eprintln!(
+            "fisheye: fx {:.3} ({:.3}) fy {:.3} cx {:.3} cy {:.3} k1 {:.5} ({}) k2 {:.5} k3 {:.5} k4 {:.6}, RMS {:.3} px, {} views",
+            c.fx, truth.fx, c.fy, c.cx, c.cy, c.k1, truth.k1, c.k2, c.k3, c.k4, r.rms_px, views.len()
+        );
+        for (got, want, what) in [
+            (c.fx, truth.fx, "fx"),
+            (c.fy, truth.fy, "fy"),
+            (c.cx, truth.cx, "cx"),
+            (c.cy, truth.cy, "cy"),
+        ] {
+            assert!(
+                ((got - want) / want).abs() < 0.005,
+                "{what} {got} vs {want}"
+            );
+        }
+        assert!(
+            (c.k1 - truth.k1).abs() < 0.01,
+            "k1 {} vs {}",
+            c.k1,
+            truth.k1
+        );
+        assert!(r.rms_px < 0.3, "RMS {}", r.rms_px);
     }
 }

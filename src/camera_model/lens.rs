@@ -15,6 +15,8 @@ pub trait CameraModel {
     fn unproject_raw(&self, u: f64, v: f64) -> Vector3<f64>;
     /// Image width and height, pixels.
     fn size(&self) -> (u32, u32);
+    /// Horizontal focal length, pixels (pixels per radian near the axis).
+    fn focal_x(&self) -> f64;
 }
 
 impl CameraModel for PinholeRadtan {
@@ -29,6 +31,9 @@ impl CameraModel for PinholeRadtan {
     fn size(&self) -> (u32, u32) {
         (self.width, self.height)
     }
+    fn focal_x(&self) -> f64 {
+        self.fx
+    }
 }
 
 impl CameraModel for KannalaBrandt {
@@ -40,6 +45,9 @@ impl CameraModel for KannalaBrandt {
     }
     fn size(&self) -> (u32, u32) {
         (self.width, self.height)
+    }
+    fn focal_x(&self) -> f64 {
+        self.fx
     }
 }
 
@@ -71,6 +79,12 @@ impl CameraModel for Lens {
         match self {
             Lens::Pinhole(c) => c.size(),
             Lens::KannalaBrandt(c) => c.size(),
+        }
+    }
+    fn focal_x(&self) -> f64 {
+        match self {
+            Lens::Pinhole(c) => c.fx,
+            Lens::KannalaBrandt(c) => c.fx,
         }
     }
 }

@@ -1,5 +1,6 @@
-//! `sdslam calibrate`: intrinsics and radial-tangential distortion from chessboard views, from
-//! a folder of images or a live camera, written as the YAML `sdslam run --calib` reads.
+//! `sdslam calibrate`: intrinsics and radial-tangential (or Kannala-Brandt fisheye) distortion
+//! from chessboard views, from a folder of images or a live camera, written as the YAML
+//! `sdslam run --calib` reads.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -7,10 +8,11 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use nalgebra::Vector2;
 
-use sdslam::calibrate::{self, Board, BoardSize, CalibrateConfig, DetectorConfig};
+use sdslam::calibrate::{self, Board, BoardSize, CalibrateConfig, DetectorConfig, LensModel};
 use sdslam::camera::decode::ImageDecoderBuf;
 use sdslam::camera::device::{self, LiveOptions, ModeRequest};
 use sdslam::camera::{Frame, FrameStatus};
+use sdslam::camera_model::Lens;
 use sdslam::io::write_atomic;
 use sdslam::{Error, Result};
 
@@ -30,9 +32,13 @@ pub struct CalibrateArgs {
     /// Output calibration file (ORB-SLAM YAML), written atomically.
     #[arg(long)]
     pub out: PathBuf,
-    /// Also estimate k3 (wide-angle lenses).
+    /// Also estimate k3 (wide-angle lenses; radial-tangential model).
     #[arg(long)]
     pub k3: bool,
+    /// Camera model: `radtan` (pinhole with radial-tangential distortion) or `kannala-brandt`
+    /// (fisheye, k1..k4; written as ORB-SLAM3's KannalaBrandt8).
+    #[arg(long, default_value = "radtan", value_parser = parse_model)]
+    pub model: LensModel,
     /// Camera input: number of distinct views to collect.
     #[arg(long, default_value_t = 20)]
     pub views: usize,
@@ -47,6 +53,14 @@ pub struct CalibrateArgs {
     pub fps: Option<f64>,
     #[command(flatten)]
     pub camera: CameraArgs,
+}
+
+fn parse_model(s: &str) -> std::result::Result<LensModel, String> {
+    match s {
+        "radtan" | "pinhole" | "radial-tangential" => Ok(LensModel::RadialTangential),
+        "kannala-brandt" | "fisheye" | "equidistant" => Ok(LensModel::KannalaBrandt),
+        _ => Err(format!("`{s}`: expected radtan or kannala-brandt")),
+    }
 }
 
 fn parse_board(s: &str) -> std::result::Result<BoardSize, String> {
@@ -102,6 +116,7 @@ pub fn calibrate(a: CalibrateArgs) -> Result<()> {
         views.len()
     );
     let cfg = CalibrateConfig {
+        model: a.model,
         estimate_k3: a.k3,
         ..CalibrateConfig::default()
     };
@@ -125,9 +140,39 @@ pub fn calibrate(a: CalibrateArgs) -> Result<()> {
             }
         }
     }
+    let (params, one_sigma) = match &c {
+        Lens::Pinhole(c) => (
+            format!(
+                "fx {:.3} fy {:.3} cx {:.3} cy {:.3} k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6} k3 {:.5}",
+                c.fx, c.fy, c.cx, c.cy, c.k1, c.k2, c.p1, c.p2, c.k3
+            ),
+            format!(
+                "fx {:.2} fy {:.2} cx {:.2} cy {:.2} k1 {:.4} k2 {:.4} p1 {:.5} p2 {:.5}{}",
+                s[0],
+                s[1],
+                s[2],
+                s[3],
+                s[4],
+                s[5],
+                s[6],
+                s[7],
+                if a.k3 { format!(" k3 {:.4}", s[8]) } else { ", k3 fixed at 0".into() }
+            ),
+        ),
+        Lens::KannalaBrandt(k) => (
+            format!(
+                "Kannala-Brandt fx {:.3} fy {:.3} cx {:.3} cy {:.3} k1 {:.5} k2 {:.5} k3 {:.5} k4 {:.6} ({:.0} degrees across)",
+                k.fx, k.fy, k.cx, k.cy, k.k1, k.k2, k.k3, k.k4, k.horizontal_fov_deg()
+            ),
+            format!(
+                "fx {:.2} fy {:.2} cx {:.2} cy {:.2} k1 {:.4} k2 {:.4} k3 {:.4} k4 {:.5}",
+                s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7]
+            ),
+        ),
+    };
     let summary = format!(
         "Calibrated by sdslam {} from {} views of a {}x{} board ({} m squares) in {}.\n\
-         Reprojection RMS {:.3} px. One-sigma: fx {:.2} fy {:.2} cx {:.2} cy {:.2} k1 {:.4} k2 {:.4} p1 {:.5} p2 {:.5}{}.",
+         Reprojection RMS {:.3} px. One-sigma: {one_sigma}.",
         env!("CARGO_PKG_VERSION"),
         r.poses.len(),
         a.board.cols,
@@ -135,21 +180,14 @@ pub fn calibrate(a: CalibrateArgs) -> Result<()> {
         a.square,
         a.input,
         r.rms_px,
-        s[0],
-        s[1],
-        s[2],
-        s[3],
-        s[4],
-        s[5],
-        s[6],
-        s[7],
-        if a.k3 { format!(" k3 {:.4}", s[8]) } else { ", k3 fixed at 0".into() }
     );
     let yaml = r.calibration(fps).to_orbslam_yaml(&summary);
     write_atomic(&a.out, yaml.as_bytes())?;
     out!(
-        "fx {:.3} fy {:.3} cx {:.3} cy {:.3} k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6} k3 {:.5}\nreprojection RMS {:.3} px over {} views; written to {}",
-        c.fx, c.fy, c.cx, c.cy, c.k1, c.k2, c.p1, c.p2, c.k3, r.rms_px, r.poses.len(), a.out.display()
+        "{params}\nreprojection RMS {:.3} px over {} views; written to {}",
+        r.rms_px,
+        r.poses.len(),
+        a.out.display()
     );
     Ok(())
 }

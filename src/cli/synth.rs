@@ -34,41 +34,54 @@ pub struct SynthArgs {
     #[arg(long, default_value_t = 10)]
     depth_every: usize,
     /// Instead of the sequence: 15 views of a 9x6 chessboard (25 mm squares) through a
-    /// distorted 640x480 camera, with that camera in `truth.yaml`, to try `sdslam calibrate`.
+    /// distorted 640x480 camera (or the fisheye with `--camera fisheye`), with that camera in
+    /// `truth.yaml`, to try `sdslam calibrate`.
     #[arg(long)]
     chessboard: bool,
 }
 
-/// Renders the chessboard calibration set.
-fn synth_chessboard(out: &std::path::Path) -> Result<()> {
+/// Renders the chessboard calibration set through the distorted webcam, or the fisheye.
+fn synth_chessboard(out: &std::path::Path, fisheye: bool) -> Result<()> {
     use sdslam::calibrate::{Board, BoardSize};
-    use sdslam::camera_model::{Calibration, PinholeRadtan};
+    use sdslam::camera_model::{Calibration, CameraModel, Lens, PinholeRadtan};
     use sdslam::synthetic::chessboard::{calibration_poses, render_chessboard};
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    let truth = PinholeRadtan {
-        k1: -0.28,
-        k2: 0.09,
-        p1: 0.0012,
-        p2: -0.0008,
-        ..PinholeRadtan::pinhole(520.0, 517.0, 318.0, 244.0, 640, 480)
+    let truth = if fisheye {
+        let cfg = SyntheticConfig {
+            fisheye: true,
+            ..SyntheticConfig::default()
+        };
+        Lens::KannalaBrandt(cfg.fisheye_lens())
+    } else {
+        Lens::Pinhole(PinholeRadtan {
+            k1: -0.28,
+            k2: 0.09,
+            p1: 0.0012,
+            p2: -0.0008,
+            ..PinholeRadtan::pinhole(520.0, 517.0, 318.0, 244.0, 640, 480)
+        })
     };
     let board = Board {
         size: BoardSize { cols: 9, rows: 6 },
         square: 0.025,
     };
-    let mut img = vec![0u8; 640 * 480];
+    let (w, h) = truth.size();
+    let mut img = vec![0u8; (w * h) as usize];
     for (k, pose) in calibration_poses(&truth, &board, 15, 11).iter().enumerate() {
         render_chessboard(&truth, pose, &board, 2.0, 100 + k as u64, &mut img);
-        sdslam::io::write_gray_png(&out.join(format!("board_{k:02}.png")), 640, 480, &img)?;
+        sdslam::io::write_gray_png(&out.join(format!("board_{k:02}.png")), w, h, &img)?;
     }
-    let yaml = Calibration::pinhole(truth, 30.0)
-        .to_orbslam_yaml("The camera the chessboard views were rendered with.");
+    let calib = match truth {
+        Lens::Pinhole(c) => Calibration::pinhole(c, 30.0),
+        Lens::KannalaBrandt(k) => Calibration::fisheye(k, 30.0),
+    };
+    let yaml = calib.to_orbslam_yaml("The camera the chessboard views were rendered with.");
     write_atomic(&out.join("truth.yaml"), yaml.as_bytes())
 }
 
 pub fn synth(a: SynthArgs) -> Result<()> {
     if a.chessboard {
-        return synth_chessboard(&a.out);
+        return synth_chessboard(&a.out, a.camera == "fisheye");
     }
     if a.frames < 2 {
         return Err(Error::Invalid("--frames must be at least 2".into()));

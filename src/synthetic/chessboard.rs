@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use super::texture::Rng;
 use crate::calibrate::Board;
-use crate::camera_model::PinholeRadtan;
+use crate::camera_model::CameraModel;
 use crate::geometry::Se3;
 
 const DARK: f64 = 35.0;
@@ -17,14 +17,15 @@ const BACKGROUND: f64 = 110.0;
 /// Renders `board` seen from `pose` (camera from board) into `out` (row-major grey), with
 /// Gaussian noise of `noise` grey levels (seeded).
 pub fn render_chessboard(
-    cam: &PinholeRadtan,
+    cam: &(impl CameraModel + Sync),
     pose: &Se3,
     board: &Board,
     noise: f64,
     seed: u64,
     out: &mut [u8],
 ) {
-    let (w, h) = (cam.width as usize, cam.height as usize);
+    let (w, h) = cam.size();
+    let (w, h) = (w as usize, h as usize);
     let r = pose.rotation.to_rotation_matrix();
     let n = r.matrix().column(2).into_owned();
     let t = pose.translation.vector;
@@ -32,8 +33,7 @@ pub fn render_chessboard(
     let s = board.square;
     let (cols, rows) = (board.size.cols as f64, board.size.rows as f64);
     let shade = |u: f64, v: f64| -> f64 {
-        let p = cam.undistort_pixel(u, v);
-        let d = cam.unproject(p.x, p.y);
+        let d = cam.unproject_raw(u, v);
         let denom = n.dot(&d);
         if denom.abs() < 1e-12 {
             return BACKGROUND;
@@ -84,14 +84,21 @@ pub fn render_chessboard(
 
 /// A spread of board poses that fills the image and tilts up to ~40 degrees: what a careful
 /// user waves in front of the camera. Deterministic.
-pub fn calibration_poses(cam: &PinholeRadtan, board: &Board, count: usize, seed: u64) -> Vec<Se3> {
+pub fn calibration_poses(
+    cam: &impl CameraModel,
+    board: &Board,
+    count: usize,
+    seed: u64,
+) -> Vec<Se3> {
+    let (width, height) = cam.size();
+    let (width, height) = (width as f64, height as f64);
     let mut rng = Rng::new(seed);
     let (bw, bh) = (
         (board.size.cols - 1) as f64 * board.square,
         (board.size.rows - 1) as f64 * board.square,
     );
     // Distance at which the board spans about 60% of the image width.
-    let base = cam.fx * bw / (0.6 * cam.width as f64);
+    let base = cam.focal_x() * bw / (0.6 * width);
     let mut poses = Vec::with_capacity(count);
     while poses.len() < count {
         let k = poses.len();
@@ -102,10 +109,11 @@ pub fn calibration_poses(cam: &PinholeRadtan, board: &Board, count: usize, seed:
         // Board centre aimed at one of nine image regions in turn.
         let (gx, gy) = ((k % 3) as f64 - 1.0, ((k / 3) % 3) as f64 - 1.0);
         let (u, v) = (
-            cam.width as f64 * (0.5 + 0.25 * gx) + rng.range(-20.0, 20.0),
-            cam.height as f64 * (0.5 + 0.25 * gy) + rng.range(-20.0, 20.0),
+            width * (0.5 + 0.25 * gx) + rng.range(-20.0, 20.0),
+            height * (0.5 + 0.25 * gy) + rng.range(-20.0, 20.0),
         );
-        let centre_c = cam.unproject(u, v) * dist;
+        let ray = cam.unproject_raw(u, v);
+        let centre_c = ray / ray.z * dist;
         let rot = UnitQuaternion::from_euler_angles(tilt_x, tilt_y, roll);
         let centre_b = nalgebra::Vector3::new(bw / 2.0, bh / 2.0, 0.0);
         let t = centre_c - rot * centre_b;
@@ -123,9 +131,8 @@ pub fn calibration_poses(cam: &PinholeRadtan, board: &Board, count: usize, seed:
             if p.z <= 0.0 {
                 return false;
             }
-            let (xd, yd) = cam.distort_normalized(p.x / p.z, p.y / p.z);
-            let (pu, pv) = (cam.fx * xd + cam.cx, cam.fy * yd + cam.cy);
-            pu > 8.0 && pv > 8.0 && pu < cam.width as f64 - 8.0 && pv < cam.height as f64 - 8.0
+            cam.project_raw(&p.coords)
+                .is_some_and(|q| q.x > 8.0 && q.y > 8.0 && q.x < width - 8.0 && q.y < height - 8.0)
         });
         if inside {
             poses.push(pose);
