@@ -69,6 +69,10 @@ fn frames(c: &mut Criterion) {
     c.bench_function("rectify_gray_640x480", |b| {
         b.iter(|| map.remap_gray(&f.gray, &mut dst))
     });
+    let mut dst_rgb = vec![0u8; 640 * 480 * 3];
+    c.bench_function("rectify_rgb_640x480", |b| {
+        b.iter(|| map.remap_rgb(&f.rgb, &mut dst_rgb))
+    });
     let mut g = c.benchmark_group("synthetic");
     g.sample_size(10);
     g.bench_function("render_640x480", |b| {

@@ -116,20 +116,23 @@ impl RectifyMap {
         }
     }
 
-    /// Remaps an interleaved RGB image.
+    /// Remaps an interleaved RGB image (one branch and one pair of row slices per pixel,
+    /// not per channel).
     pub fn remap_rgb(&self, src: &[u8], dst: &mut [u8]) {
         let w = self.width as usize;
-        for (o, (&i, wt)) in self.index.iter().zip(&self.weights).enumerate() {
+        for ((d, &i), wt) in dst.chunks_exact_mut(3).zip(&self.index).zip(&self.weights) {
+            if i == u32::MAX {
+                d.fill(0);
+                continue;
+            }
+            let i = 3 * i as usize;
+            let (a, b) = (&src[i..i + 6], &src[i + 3 * w..i + 3 * w + 6]);
             for c in 0..3 {
-                dst[3 * o + c] = if i == u32::MAX {
-                    0
-                } else {
-                    let i = i as usize;
-                    let s = |j: usize| src[3 * j + c] as u32;
-                    let v =
-                        wt[0] * s(i) + wt[1] * s(i + 1) + wt[2] * s(i + w) + wt[3] * s(i + w + 1);
-                    ((v + 32768) >> 16) as u8
-                };
+                let v = wt[0] * a[c] as u32
+                    + wt[1] * a[3 + c] as u32
+                    + wt[2] * b[c] as u32
+                    + wt[3] * b[3 + c] as u32;
+                d[c] = ((v + 32768) >> 16) as u8;
             }
         }
     }
