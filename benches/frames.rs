@@ -11,6 +11,7 @@ use sdslam::camera_model::{PinholeRadtan, RectifyMap};
 use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
 
 fn frames(c: &mut Criterion) {
+    sdslam::simd::cap_from_env().expect("SDSLAM_SIMD");
     let seq = SyntheticSequence::new(SyntheticConfig {
         frames: 10,
         ..SyntheticConfig::default()

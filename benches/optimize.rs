@@ -13,6 +13,7 @@ use sdslam::optimize::lie::se3_retract;
 use sdslam::optimize::{BaOptions, BundleAdjuster, MotionOnlyBa};
 
 fn optimize(c: &mut Criterion) {
+    sdslam::simd::cap_from_env().expect("SDSLAM_SIMD");
     // Motion-only: 300 observations of one frame, 10% outliers, perturbed start.
     let (truth, _, _) = ba_problem(2, 400, 2, 0.0, 11);
     let pose = truth.poses[1];

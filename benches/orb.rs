@@ -9,6 +9,7 @@ use sdslam::matching::hamming;
 use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
 
 fn orb(c: &mut Criterion) {
+    sdslam::simd::cap_from_env().expect("SDSLAM_SIMD");
     let seq = SyntheticSequence::new(SyntheticConfig::default());
     let mut f = Frame::new(640, 480);
     seq.render_frame(30, &mut f);

@@ -9,6 +9,7 @@ use sdslam::semidense::{prior_range, Intrinsics, KeyframeReconstructor};
 use sdslam::synthetic::{SyntheticConfig, SyntheticSequence};
 
 fn semidense(c: &mut Criterion) {
+    sdslam::simd::cap_from_env().expect("SDSLAM_SIMD");
     let seq = SyntheticSequence::new(SyntheticConfig {
         frames: 300,
         ..SyntheticConfig::default()

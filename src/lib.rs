@@ -20,6 +20,7 @@ pub mod optimize;
 pub mod place_recognition;
 pub mod runtime;
 pub mod semidense;
+pub mod simd;
 pub mod synthetic;
 pub mod threads;
 pub mod timing;

@@ -1037,3 +1037,41 @@ fn semidense_final_writes_both_clouds_and_densify_takes_its_keyframes() {
     assert_eq!(r["semidense_non_paper_settings"], serde_json::json!({}));
     assert!(r["semidense_final"].is_null());
 }
+
+/// The 128-bit profile (`--simd 128`: only the SSE4.2 baseline, the width of an ARM robot's
+/// NEON) runs the portable twins of every wide kernel; they must give the same trajectory
+/// and the same semi-dense cloud, bit for bit, as the AVX2/AVX-512 paths.
+#[test]
+fn the_128_bit_profile_gives_the_same_trajectory_and_cloud() {
+    let d = tempfile::tempdir().unwrap();
+    let mut outputs = Vec::new();
+    for width in ["auto", "128"] {
+        let out = d.path().join(width);
+        let (ok, _, err) = sdslam(&[
+            "-q",
+            "--simd",
+            width,
+            "run",
+            "synthetic",
+            "--frames",
+            "30",
+            "--deterministic",
+            "--no-plots",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(ok, "--simd {width}: {err}");
+        let read = |n: &str| std::fs::read(out.join(n)).unwrap();
+        assert!(!read("semidense.ply").is_empty());
+        outputs.push((read("trajectory.txt"), read("semidense.ply")));
+        let bits = if width == "128" { 128 } else { 512 };
+        assert_eq!(report(&out)["simd_max_bits"], bits);
+    }
+    assert!(outputs[0].0 == outputs[1].0, "trajectories differ");
+    assert!(outputs[0].1 == outputs[1].1, "semi-dense clouds differ");
+    let (ok, _, err) = sdslam(&["--simd", "64", "config", "--defaults"]);
+    assert!(
+        !ok && err.contains("expected 128, 256, 512 or auto"),
+        "{err}"
+    );
+}

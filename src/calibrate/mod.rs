@@ -33,7 +33,7 @@ impl Board {
 /// The camera model to calibrate.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LensModel {
-    /// Pinhole with radial-tangential distortion (k1 k2 p1 p2 [k3]).
+    /// Pinhole with radial-tangential distortion (k1 k2 p1 p2, and k3 on request).
     #[default]
     RadialTangential,
     /// Kannala-Brandt fisheye (k1..k4).

@@ -9,7 +9,7 @@ mod pinhole;
 mod rectify;
 pub mod yaml;
 
-pub use calibration::{CalibError, Calibration};
+pub use calibration::{CalibError, Calibration, FISHEYE_VIEW_FOV_DEG};
 pub use kannala_brandt::KannalaBrandt;
 pub use lens::{CameraModel, Lens};
 pub use pinhole::PinholeRadtan;

@@ -69,6 +69,10 @@ struct Cli {
     /// No progress bar and only warnings and errors.
     #[arg(short, long, global = true)]
     quiet: bool,
+    /// Widest SIMD the kernels may use: 128 (the SSE4.2 baseline, the width an ARM robot's
+    /// NEON has), 256 (AVX2), 512 or auto (what the CPU has; default). Also `SDSLAM_SIMD`.
+    #[arg(long, global = true, value_name = "BITS", value_parser = sdslam::simd::parse_width)]
+    simd: Option<sdslam::simd::Width>,
 }
 
 static QUIET: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
@@ -141,6 +145,10 @@ fn main() -> ExitCode {
 fn dispatch(cli: Cli) -> Result<()> {
     init_logging(cli.verbose);
     QUIET.store(cli.quiet, std::sync::atomic::Ordering::Relaxed);
+    sdslam::simd::cap_from_env().map_err(sdslam::Error::Invalid)?;
+    if let Some(w) = cli.simd {
+        sdslam::simd::set_max_width(w);
+    }
     match cli.command {
         None => run::run(run::RunArgs::default_synthetic()),
         Some(Command::Run(a)) => run::run(a),

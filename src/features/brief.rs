@@ -213,7 +213,7 @@ mod tests {
             let portable = describe(&img, &pts, x, y, a);
             assert_eq!(portable, naive(&img, x, y, a), "({x}, {y}) at {a}");
             #[cfg(target_arch = "x86_64")]
-            if std::arch::is_x86_feature_detected!("avx2") {
+            if crate::simd::avx2() {
                 // SAFETY: AVX2 checked above.
                 let fast = unsafe { describe_avx2(&img, &pts, x, y, a) };
                 assert_eq!(fast, portable, "AVX2 at ({x}, {y}) at {a}");

@@ -177,7 +177,7 @@ impl OrbExtractor {
     /// camera, keypoints also get undistorted coordinates.
     pub fn extract(&mut self, gray: &[u8], camera: Option<&PinholeRadtan>, out: &mut Features) {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if crate::simd::avx2() {
             // SAFETY: the CPU supports AVX2 (checked just above); the function is otherwise safe.
             unsafe { self.build_avx2(gray) };
         } else {
@@ -247,7 +247,7 @@ impl OrbExtractor {
 /// Detects, distributes and describes the levels whose blurred image `mine` holds.
 fn run_lane(s: &Shared, mine: [Option<&mut PaddedImage>; MAX_LEVELS], lane: &mut Lane) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
+    if crate::simd::avx2() {
         // SAFETY: the CPU supports AVX2 (checked just above); the function is otherwise safe.
         unsafe { run_lane_avx2(s, mine, lane) };
         return;
@@ -278,7 +278,7 @@ fn run_lane_portable(s: &Shared, mine: [Option<&mut PaddedImage>; MAX_LEVELS], l
 #[inline(always)]
 fn describe_any(b: &PaddedImage, p: &PatternPoints, x: isize, y: isize, a: f32) -> Descriptor {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
+    if crate::simd::avx2() {
         // SAFETY: the CPU supports AVX2 (checked just above).
         return unsafe { super::brief::describe_avx2(b, p, x, y, a) };
     }

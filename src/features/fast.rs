@@ -149,7 +149,7 @@ pub fn detect(
     );
     assert!(score_map.len() >= img.width * img.height);
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
+    if crate::simd::avx2() {
         // SAFETY: the CPU supports AVX2 (checked just above); the function is otherwise safe.
         unsafe { detect_avx2(img, threshold, region, out, score_map) };
         return;

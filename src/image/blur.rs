@@ -36,7 +36,7 @@ pub fn gaussian_blur_7x7(
     tmp.resize(h * tw, 0);
     let st = src.stride;
     #[cfg(target_arch = "x86_64")]
-    let avx2 = std::arch::is_x86_feature_detected!("avx2");
+    let avx2 = crate::simd::avx2();
     for y in 0..h {
         let base = src.idx(-3, y as isize);
         let out = &mut tmp[y * tw..(y + 1) * tw];
@@ -159,7 +159,7 @@ mod tests {
     #[test]
     fn avx2_passes_equal_scalar() {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if crate::simd::avx2() {
             let mut s = 3u64;
             let mut rnd = || {
                 s = s.wrapping_mul(6364136223846793005).wrapping_add(1);

@@ -198,7 +198,7 @@ fn resample(
 #[inline(always)]
 fn horizontal(tmp: &[u8], groups: &[XGroup], out: &mut [u8], n: usize) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("ssse3") && out.len() >= groups.len() * 8 {
+    if crate::simd::ssse3() && out.len() >= groups.len() * 8 {
         // SAFETY: SSSE3 is present; every group reads 16 bytes at base <= tmp.len() - 16 and
         // writes 8 bytes at 8 g < out.len() - 7 (checked above).
         unsafe { horizontal_ssse3(tmp, groups, out) };

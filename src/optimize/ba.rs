@@ -393,7 +393,7 @@ impl BundleAdjuster {
         }
         sys.damp(lambda, 1e-12);
         #[cfg(target_arch = "x86_64")]
-        let avx = std::arch::is_x86_feature_detected!("avx");
+        let avx = crate::simd::avx();
         for j in 0..np {
             let obs = &self.point_obs[self.point_start[j]..self.point_start[j + 1]];
             let hinv = &self.hll_inv[j];

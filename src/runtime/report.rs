@@ -92,6 +92,8 @@ pub struct Report {
     /// Keyframe ATE RMSE after Sim3 alignment, when ground truth is available (source units).
     pub keyframe_ate_rmse_m: Option<f64>,
     pub deadline_ms: f64,
+    /// The widest SIMD the kernels were allowed (`--simd`): 128, 256 or 512 bits.
+    pub simd_max_bits: u32,
     pub wall_time_s: f64,
     /// The final full BA (`[map] final_global_ba`), after the last frame, milliseconds.
     pub final_ba_ms: f64,

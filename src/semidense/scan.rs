@@ -48,13 +48,13 @@ pub(super) struct Best {
 /// words of a step and the row on either side unmasked).
 pub(super) fn scan(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx512f") {
+    if crate::simd::avx512f() {
         // SAFETY: AVX-512F is available (checked above); gathers read the in-image words of
         // live samples only (masked lanes read nothing).
         return unsafe { scan_avx512(walk, probe, params, t) };
     }
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
+    if crate::simd::avx2() {
         // SAFETY: AVX2 is available (checked above); loads and gathers read the in-image
         // words of live samples only (masked lanes read nothing).
         return unsafe { scan_avx2(walk, probe, params, t) };
@@ -531,13 +531,13 @@ mod tests {
             let key = |b: Best| (b.e.to_bits(), b.k, b.ri.to_bits(), b.rg.to_bits());
             #[cfg(target_arch = "x86_64")]
             {
-                if std::arch::is_x86_feature_detected!("avx2") {
+                if crate::simd::avx2() {
                     // SAFETY: AVX2 checked; the walk stays inside `t`.
                     let b = unsafe { scan_avx2(&walk, &probe, &params, &t) };
                     assert_eq!(key(a), key(b), "AVX2, trial {trial}");
                     simd_checked += 1;
                 }
-                if std::arch::is_x86_feature_detected!("avx512f") {
+                if crate::simd::avx512f() {
                     // SAFETY: AVX-512F checked; the walk stays inside `t`.
                     let b = unsafe { scan_avx512(&walk, &probe, &params, &t) };
                     assert_eq!(key(a), key(b), "AVX-512, trial {trial}");

@@ -167,6 +167,11 @@ pub fn start(s: &Session, source: Box<dyn FrameSource>) -> Result<(Running, Box<
         sdslam_version: env!("CARGO_PKG_VERSION").into(),
         source: s.info.name.clone(),
         deadline_ms: s.deadline_ms,
+        simd_max_bits: match sdslam::simd::max_width() {
+            sdslam::simd::Width::W128 => 128,
+            sdslam::simd::Width::W256 => 256,
+            sdslam::simd::Width::W512 => 512,
+        },
         ..Report::default()
     };
     let running = Running {
