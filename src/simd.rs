@@ -94,15 +94,4 @@ mod tests {
         assert!(parse_width("64").is_err());
         assert!(Width::W128 < Width::W256 && Width::W256 < Width::W512);
     }
-
-    #[cfg(target_arch = "x86_64")]
-    #[test]
-    fn the_cap_turns_the_wide_kernels_off() {
-        // The kernels give the same results either way (their twins are tested equal), so
-        // other tests running meanwhile are not disturbed.
-        set_max_width(Width::W128);
-        let capped = (avx2(), avx(), avx512f());
-        set_max_width(Width::W512);
-        assert_eq!(capped, (false, false, false));
-    }
 }

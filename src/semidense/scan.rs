@@ -59,7 +59,7 @@ pub(super) fn scan(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32])
         // words of live samples only (masked lanes read nothing).
         return unsafe { scan_avx2(walk, probe, params, t) };
     }
-    scan_scalar(walk, probe, params, t)
+    scan_lanes(walk, probe, params, t)
 }
 
 /// Conditions 1-3 on a code: strong gradient, orientation within lambda_theta of the rotated
@@ -129,12 +129,56 @@ const NONE: Best = Best {
     q: 0.0,
 };
 
+/// The reference: one sample after the other, one running minimum (what every other scan is
+/// tested equal to).
+#[cfg(test)]
 pub(super) fn scan_scalar(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
     let (pg_fixed, k_g) = ranking_constants(probe, params);
     let mut best = NONE;
     // Without branches on the sample (whether it passes is data and mispredicts): every
     // sample's error is computed and taken by selection.
     for k in 0..walk.n {
+        let v = t[nearest(k, walk)];
+        let e = ranking_error(v, probe.intensity, pg_fixed, k_g);
+        let take = passes((v & 255) as u8, probe, params) & (e < best.e);
+        best.e = if take { e } else { best.e };
+        best.k = if take { k } else { best.k };
+    }
+    finish(best, walk, probe, params, t)
+}
+
+/// Lanes of [`scan_lanes`]: the width of SSE and NEON vectors of f32.
+const LANES: usize = 4;
+
+/// The portable scan (every CPU without AVX2: the 128-bit profile, ARM): the samples in
+/// blocks of four, each lane keeping its own running minimum, so no step depends on the one
+/// before and the compiler vectorises the error, the tests and the selection (the scalar
+/// loop's single minimum chains every sample to the previous). The overall first minimum is
+/// the lowest index among the lanes' minima of the lowest error: the same winner as
+/// [`scan_scalar`], bit for bit.
+pub(super) fn scan_lanes(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
+    let (pg_fixed, k_g) = ranking_constants(probe, params);
+    let mut be = [f32::INFINITY; LANES];
+    let mut bk = [0usize; LANES];
+    let blocks = walk.n / LANES;
+    for b in 0..blocks {
+        let k0 = b * LANES;
+        let v: [u32; LANES] = std::array::from_fn(|l| t[nearest(k0 + l, walk)]);
+        for l in 0..LANES {
+            let e = ranking_error(v[l], probe.intensity, pg_fixed, k_g);
+            let take = passes((v[l] & 255) as u8, probe, params) & (e < be[l]);
+            be[l] = if take { e } else { be[l] };
+            bk[l] = if take { k0 + l } else { bk[l] };
+        }
+    }
+    let mut best = NONE;
+    for l in 0..LANES {
+        if be[l] < best.e || (be[l] == best.e && bk[l] < best.k) {
+            best.e = be[l];
+            best.k = bk[l];
+        }
+    }
+    for k in blocks * LANES..walk.n {
         let v = t[nearest(k, walk)];
         let e = ranking_error(v, probe.intensity, pg_fixed, k_g);
         let take = passes((v & 255) as u8, probe, params) & (e < best.e);
@@ -529,6 +573,8 @@ mod tests {
             };
             let a = scan_scalar(&walk, &probe, &params, &t);
             let key = |b: Best| (b.e.to_bits(), b.k, b.ri.to_bits(), b.rg.to_bits());
+            let b = scan_lanes(&walk, &probe, &params, &t);
+            assert_eq!(key(a), key(b), "portable lanes, trial {trial}");
             #[cfg(target_arch = "x86_64")]
             {
                 if crate::simd::avx2() {
