@@ -295,7 +295,7 @@ mod tests {
         let b = board();
         let pts = b.points();
         let mut img = vec![0u8; 640 * 480];
-        let poses = calibration_poses(&cam, &b, 6, 3);
+        let poses = calibration_poses(&Lens::Pinhole(cam), &b, 6, 3);
         for (k, pose) in poses.iter().enumerate() {
             render_chessboard(&cam, pose, &b, 2.0, k as u64, &mut img);
             let corners = detect(&img, 640, 480, b.size, &DetectorConfig::default())
@@ -340,6 +340,21 @@ mod end_to_end {
     use super::*;
     use crate::synthetic::chessboard::{calibration_poses, render_chessboard};
 
+    /// The acceptance figures: fx, fy, cx, cy within 0.5%, k1 within 0.01, RMS under 0.3 px.
+    fn assert_recovers(name: &str, got: [f64; 5], want: [f64; 5], r: &CalibrationResult) {
+        for (i, what) in ["fx", "fy", "cx", "cy"].iter().enumerate() {
+            let (g, w) = (got[i], want[i]);
+            assert!(((g - w) / w).abs() < 0.005, "{name}: {what} {g} vs {w}");
+        }
+        assert!(
+            (got[4] - want[4]).abs() < 0.01,
+            "{name}: k1 {} vs {}",
+            got[4],
+            want[4]
+        );
+        assert!(r.rms_px < 0.3, "{name}: RMS {}", r.rms_px);
+    }
+
     #[test]
     fn recovers_intrinsics_and_distortion_from_rendered_views() {
         for (name, truth) in [
@@ -369,14 +384,15 @@ mod end_to_end {
                 square: 0.025,
             };
             let mut img = vec![0u8; 640 * 480];
-            let views: Vec<Vec<Vector2<f64>>> = calibration_poses(&truth, &b, 15, 11)
-                .iter()
-                .enumerate()
-                .filter_map(|(k, pose)| {
-                    render_chessboard(&truth, pose, &b, 2.0, 100 + k as u64, &mut img);
-                    detect(&img, 640, 480, b.size, &DetectorConfig::default())
-                })
-                .collect();
+            let views: Vec<Vec<Vector2<f64>>> =
+                calibration_poses(&Lens::Pinhole(truth), &b, 15, 11)
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(k, pose)| {
+                        render_chessboard(&truth, pose, &b, 2.0, 100 + k as u64, &mut img);
+                        detect(&img, 640, 480, b.size, &DetectorConfig::default())
+                    })
+                    .collect();
             assert!(
                 views.len() >= 14,
                 "{name}: board found in {} of 15 views",
@@ -390,24 +406,13 @@ mod end_to_end {
                 "{name}: fx {:.3} fy {:.3} cx {:.3} cy {:.3} k1 {:.5} k2 {:.5} p1 {:.6} p2 {:.6}, RMS {:.3} px, {} views, std fx {:.3}",
                 c.fx, c.fy, c.cx, c.cy, c.k1, c.k2, c.p1, c.p2, r.rms_px, views.len(), r.std_dev[0]
             );
-            for (got, want, what) in [
-                (c.fx, truth.fx, "fx"),
-                (c.fy, truth.fy, "fy"),
-                (c.cx, truth.cx, "cx"),
-                (c.cy, truth.cy, "cy"),
-            ] {
-                assert!(
-                    ((got - want) / want).abs() < 0.005,
-                    "{name}: {what} {got} vs {want}"
-                );
-            }
-            assert!(
-                (c.k1 - truth.k1).abs() < 0.01,
-                "{name}: k1 {} vs {}",
-                c.k1,
-                truth.k1
+            let got = [c.fx, c.fy, c.cx, c.cy, c.k1];
+            assert_recovers(
+                name,
+                got,
+                [truth.fx, truth.fy, truth.cx, truth.cy, truth.k1],
+                &r,
             );
-            assert!(r.rms_px < 0.3, "{name}: RMS {}", r.rms_px);
         }
     }
 
@@ -449,23 +454,7 @@ mod end_to_end {
             "fisheye: fx {:.3} ({:.3}) fy {:.3} cx {:.3} cy {:.3} k1 {:.5} ({}) k2 {:.5} k3 {:.5} k4 {:.6}, RMS {:.3} px, {} views",
             c.fx, truth.fx, c.fy, c.cx, c.cy, c.k1, truth.k1, c.k2, c.k3, c.k4, r.rms_px, views.len()
         );
-        for (got, want, what) in [
-            (c.fx, truth.fx, "fx"),
-            (c.fy, truth.fy, "fy"),
-            (c.cx, truth.cx, "cx"),
-            (c.cy, truth.cy, "cy"),
-        ] {
-            assert!(
-                ((got - want) / want).abs() < 0.005,
-                "{what} {got} vs {want}"
-            );
-        }
-        assert!(
-            (c.k1 - truth.k1).abs() < 0.01,
-            "k1 {} vs {}",
-            c.k1,
-            truth.k1
-        );
-        assert!(r.rms_px < 0.3, "RMS {}", r.rms_px);
+        let want = [truth.fx, truth.fy, truth.cx, truth.cy, truth.k1];
+        assert_recovers("fisheye", [c.fx, c.fy, c.cx, c.cy, c.k1], want, &r);
     }
 }

@@ -514,49 +514,55 @@ impl Calibration {
         for l in comment.lines() {
             s.push_str(&format!("# {l}\n"));
         }
-        if let Some(k) = &self.fisheye {
-            s.push_str("Camera.type: \"KannalaBrandt8\"\n");
-            for (n, v) in [
-                ("fx", k.fx),
-                ("fy", k.fy),
-                ("cx", k.cx),
-                ("cy", k.cy),
-                ("k1", k.k1),
-                ("k2", k.k2),
-                ("k3", k.k3),
-                ("k4", k.k4),
-            ] {
-                s.push_str(&format!("Camera.{n}: {v:?}\n"));
-            }
-            s.push_str(&format!(
-                "Camera.width: {}\nCamera.height: {}\nCamera.fps: {:?}\n",
-                k.width, k.height, self.fps
-            ));
-            if *c != k.pinhole_view(FISHEYE_VIEW_FOV_DEG) {
-                let half_px = k.cx.max(k.width as f64 - 1.0 - k.cx) + 0.5;
-                let fov = 2.0 * (half_px / c.fx).atan().to_degrees();
-                s.push_str(&format!("Camera.viewFov: {fov:?}\n"));
-            }
-            return s;
-        }
-        s.push_str("Camera.type: \"PinHole\"\n");
-        for (k, v) in [
-            ("fx", c.fx),
-            ("fy", c.fy),
-            ("cx", c.cx),
-            ("cy", c.cy),
-            ("k1", c.k1),
-            ("k2", c.k2),
-            ("p1", c.p1),
-            ("p2", c.p2),
-            ("k3", c.k3),
-        ] {
-            s.push_str(&format!("Camera.{k}: {v:?}\n"));
+        let (kind, params, (width, height)) = match &self.fisheye {
+            Some(k) => (
+                "KannalaBrandt8",
+                [
+                    ("fx", k.fx),
+                    ("fy", k.fy),
+                    ("cx", k.cx),
+                    ("cy", k.cy),
+                    ("k1", k.k1),
+                    ("k2", k.k2),
+                    ("k3", k.k3),
+                    ("k4", k.k4),
+                ]
+                .to_vec(),
+                (k.width, k.height),
+            ),
+            None => (
+                "PinHole",
+                [
+                    ("fx", c.fx),
+                    ("fy", c.fy),
+                    ("cx", c.cx),
+                    ("cy", c.cy),
+                    ("k1", c.k1),
+                    ("k2", c.k2),
+                    ("p1", c.p1),
+                    ("p2", c.p2),
+                    ("k3", c.k3),
+                ]
+                .to_vec(),
+                (c.width, c.height),
+            ),
+        };
+        s.push_str(&format!("Camera.type: \"{kind}\"\n"));
+        for (n, v) in params {
+            s.push_str(&format!("Camera.{n}: {v:?}\n"));
         }
         s.push_str(&format!(
-            "Camera.width: {}\nCamera.height: {}\nCamera.fps: {:?}\n",
-            c.width, c.height, self.fps
+            "Camera.width: {width}\nCamera.height: {height}\nCamera.fps: {:?}\n",
+            self.fps
         ));
+        if let Some(k) = self
+            .fisheye
+            .filter(|k| *c != k.pinhole_view(FISHEYE_VIEW_FOV_DEG))
+        {
+            let half_px = k.cx.max(k.width as f64 - 1.0 - k.cx) + 0.5;
+            let fov = 2.0 * (half_px / c.fx).atan().to_degrees();
+            s.push_str(&format!("Camera.viewFov: {fov:?}\n"));
+        }
         s
     }
 }

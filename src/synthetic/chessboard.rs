@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use super::texture::Rng;
 use crate::calibrate::Board;
-use crate::camera_model::CameraModel;
+use crate::camera_model::{CameraModel, Lens};
 use crate::geometry::Se3;
 
 const DARK: f64 = 35.0;
@@ -84,12 +84,7 @@ pub fn render_chessboard(
 
 /// A spread of board poses that fills the image and tilts up to ~40 degrees: what a careful
 /// user waves in front of the camera. Deterministic.
-pub fn calibration_poses(
-    cam: &impl CameraModel,
-    board: &Board,
-    count: usize,
-    seed: u64,
-) -> Vec<Se3> {
+pub fn calibration_poses(cam: &Lens, board: &Board, count: usize, seed: u64) -> Vec<Se3> {
     let (width, height) = cam.size();
     let (width, height) = (width as f64, height as f64);
     let mut rng = Rng::new(seed);
@@ -112,7 +107,12 @@ pub fn calibration_poses(
             width * (0.5 + 0.25 * gx) + rng.range(-20.0, 20.0),
             height * (0.5 + 0.25 * gy) + rng.range(-20.0, 20.0),
         );
-        let ray = cam.unproject_raw(u, v);
+        // The image point aimed at is taken in the lens's own model without distortion (the
+        // pinhole's K alone), so the spread does not depend on the distortion.
+        let ray = match cam {
+            Lens::Pinhole(c) => c.unproject(u, v),
+            Lens::KannalaBrandt(k) => k.unproject(u, v),
+        };
         let centre_c = ray / ray.z * dist;
         let rot = UnitQuaternion::from_euler_angles(tilt_x, tilt_y, roll);
         let centre_b = nalgebra::Vector3::new(bw / 2.0, bh / 2.0, 0.0);
