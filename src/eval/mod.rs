@@ -9,6 +9,6 @@ mod rpe;
 
 pub use crate::geometry::umeyama;
 pub use ate::{associate, ate, AteResult, TimedPose};
-pub use cloud::{cloud_accuracy, CloudAccuracy, DepthFrame};
+pub use cloud::{cloud_accuracy, CloudAccuracy, CloudAccuracyBuilder, DepthFrame};
 pub use pose_alignment::{pose_alignment, AXIS_POINT_M};
 pub use rpe::{rpe, RpeResult};
