@@ -633,6 +633,12 @@ impl Config {
                 return bad(field, &format!("must be in 1..={MAX_ITERATIONS} (got {v})"));
             }
         }
+        if !(t.relocalisation_budget_ms.is_finite() && t.relocalisation_budget_ms >= 0.0) {
+            return bad(
+                "tracking.relocalisation_budget_ms",
+                "must be a time in milliseconds >= 0 (0: no bound)",
+            );
+        }
         if !(-1.0..=1.0).contains(&t.min_view_cos) {
             return bad("tracking.min_view_cos", "must be a cosine in [-1, 1]");
         }

@@ -26,6 +26,12 @@ pub struct TrackingConfig {
     /// Keyframes the place database proposes to relocalise against (best bag-of-words
     /// scores; ORB-SLAM takes every keyframe above a score, at most about this many matter).
     pub relocalisation_candidates: usize,
+    /// Real-time use: a lost frame stops trying relocalisation candidates once this much
+    /// time went into them (at least one is tried per frame; ours, not ORB-SLAM's), and the
+    /// next lost frame starts with the candidates not yet tried, so a large map's candidates
+    /// are spread over frames instead of holding one past its deadline. 0: no bound. Not
+    /// applied in the deterministic mode or to replayed recordings (no clock in the result).
+    pub relocalisation_budget_ms: f64,
     /// A map of at most this many keyframes is young: lost in it for more than
     /// `young_map_patience_frames` consecutive frames, it is discarded and initialisation
     /// starts over (ORB-SLAM resets at once; a short blackout should not cost the map).
@@ -67,6 +73,7 @@ impl Default for TrackingConfig {
             max_local_keyframes: 80,
             min_view_cos: 0.5,
             relocalisation_candidates: 10,
+            relocalisation_budget_ms: 10.0,
             young_map_keyframes: 5,
             young_map_patience_frames: 30,
             new_map_when_lost: true,

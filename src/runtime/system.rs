@@ -169,7 +169,45 @@ pub struct System {
     final_semidense: FinalSemiDense,
     /// Consecutive frames initialisation has failed (for a warning).
     uninitialised_frames: usize,
+    /// Relocalisation candidates of the current lost episode (budgeted real-time use).
+    reloc: RelocCandidates,
     pub stats: SystemStats,
+}
+
+/// Which relocalisation candidates a lost episode has tried, so frames cut by the budget
+/// go on with the others; reused buffers.
+#[derive(Default)]
+struct RelocCandidates {
+    candidates: Vec<KeyFrameId>,
+    tried: Vec<KeyFrameId>,
+}
+
+impl RelocCandidates {
+    fn with_capacity(n: usize) -> Self {
+        RelocCandidates {
+            candidates: Vec::with_capacity(n),
+            tried: Vec::with_capacity(2 * n),
+        }
+    }
+
+    /// The first `n` of `candidates` were tried with outcome `state`: remembered while the
+    /// episode goes on, forgotten once relocalised or once every candidate had its turn
+    /// (the frames change: a candidate may match a later one).
+    fn attempted(&mut self, candidates: &[KeyFrameId], n: usize, state: TrackingState) {
+        let n = n.min(candidates.len());
+        if state == TrackingState::Ok || n == candidates.len() {
+            self.tried.clear();
+            return;
+        }
+        for c in &candidates[..n] {
+            if !self.tried.contains(c) && self.tried.len() < self.tried.capacity() {
+                self.tried.push(*c);
+            }
+        }
+        if self.tried.len() == self.tried.capacity() {
+            self.tried.clear();
+        }
+    }
 }
 
 /// The configured numbers `System` itself applies (the stages keep their own).
@@ -177,6 +215,8 @@ struct SystemLimits {
     young_map_keyframes: usize,
     young_map_patience_frames: usize,
     relocalisation_candidates: usize,
+    /// `[tracking] relocalisation_budget_ms` (None: no bound).
+    relocalisation_budget: Option<std::time::Duration>,
     final_ba_iterations: usize,
     new_map_when_lost: bool,
 }
@@ -301,11 +341,19 @@ impl System {
                 young_map_keyframes: config.tracking.young_map_keyframes,
                 young_map_patience_frames: config.tracking.young_map_patience_frames,
                 relocalisation_candidates: config.tracking.relocalisation_candidates,
+                relocalisation_budget: (config.tracking.relocalisation_budget_ms > 0.0).then(
+                    || {
+                        std::time::Duration::from_secs_f64(
+                            config.tracking.relocalisation_budget_ms * 1e-3,
+                        )
+                    },
+                ),
                 final_ba_iterations: config.map.final_ba_iterations,
                 new_map_when_lost: config.tracking.new_map_when_lost,
             },
             final_semidense: FinalSemiDense::new(config, max_features),
             uninitialised_frames: 0,
+            reloc: RelocCandidates::with_capacity(config.tracking.relocalisation_candidates),
             stats: SystemStats {
                 frames: 0,
                 tracked_frames: 0,
@@ -566,7 +614,8 @@ impl System {
             return TrackingState::Lost;
         };
         let (bow, _) = v.transform(&self.frame.features.descriptors, 2);
-        let mut candidates = Vec::new();
+        let mut candidates = std::mem::take(&mut self.reloc.candidates);
+        candidates.clear();
         {
             let mut places = self.places.lock().unwrap_or_else(|e| e.into_inner());
             let n = self.limits.relocalisation_candidates;
@@ -581,7 +630,29 @@ impl System {
                 }
             }
         }
-        self.tracker.relocalise(map, &mut self.frame, &candidates)
+        // Real time: the candidates not tried in this lost episode first, within the budget.
+        let budget = self
+            .limits
+            .relocalisation_budget
+            .filter(|_| self.bounds_frame_time());
+        let tried = &self.reloc.tried;
+        candidates.sort_by_key(|c| tried.contains(c));
+        let st = self
+            .tracker
+            .relocalise(map, &mut self.frame, &candidates, budget);
+        self.reloc.attempted(
+            &candidates,
+            self.tracker.relocalisation_candidates_tried(),
+            st,
+        );
+        self.reloc.candidates = candidates;
+        st
+    }
+
+    /// Whether frames have a real-time deadline here (threaded, not a replayed recording):
+    /// only then may a frame's work be cut by the clock.
+    fn bounds_frame_time(&self) -> bool {
+        matches!(self.mapping, Mapping::Thread { .. }) && !self.replay
     }
 
     /// Adds a keyframe to the place-recognition database.
@@ -696,5 +767,36 @@ impl System {
             job.solve();
             job.merge(map);
         }
+    }
+}
+
+#[cfg(test)]
+mod reloc_candidate_tests {
+    use super::*;
+
+    #[test]
+    fn a_cut_episode_goes_on_with_the_candidates_not_yet_tried() {
+        let mut map = Map::new(MapConfig {
+            max_keyframes: 8,
+            max_map_points: 8,
+            max_features: 10,
+            ..MapConfig::default()
+        });
+        let k: Vec<KeyFrameId> = (0..4)
+            .filter_map(|_| map.insert_keyframe(|_| {}).ok())
+            .collect();
+        let mut r = RelocCandidates::with_capacity(4);
+        // Frame 1 tried two of four: they go to the back of frame 2's list.
+        r.attempted(&k, 2, TrackingState::Lost);
+        let mut next = vec![k[0], k[2], k[1], k[3]];
+        next.sort_by_key(|c| r.tried.contains(c));
+        assert_eq!(next, vec![k[2], k[3], k[0], k[1]]);
+        // Frame 2 tried its whole list: the episode starts over with the best first.
+        r.attempted(&next, 4, TrackingState::Lost);
+        assert!(r.tried.is_empty());
+        // Relocalised: forgotten as well.
+        r.attempted(&k, 1, TrackingState::Lost);
+        r.attempted(&k, 1, TrackingState::Ok);
+        assert!(r.tried.is_empty());
     }
 }

@@ -66,6 +66,10 @@ pub struct Tracker {
     pub lost_episodes: usize,
     /// Successful relocalisations.
     pub relocalisations: usize,
+    /// Lost frames whose relocalisation stopped at its time budget.
+    pub relocalisation_budget_cuts: usize,
+    /// Candidates the last relocalisation tried.
+    reloc_tried: usize,
     /// Stage timers: pose prediction and matching (motion model, or the reference keyframe,
     /// with pose optimisation), local-map tracking, relocalisation attempts.
     pub t_prediction: crate::timing::StageTimer,
@@ -192,6 +196,8 @@ impl Tracker {
             last_keyframe_frame: 0,
             lost_episodes: 0,
             relocalisations: 0,
+            relocalisation_budget_cuts: 0,
+            reloc_tried: 0,
             t_prediction: crate::timing::StageTimer::with_capacity(4096),
             t_local_map: crate::timing::StageTimer::with_capacity(4096),
             t_relocalisation: crate::timing::StageTimer::with_capacity(1024),
@@ -355,16 +361,26 @@ impl Tracker {
     /// consistency), solve EPnP-RANSAC on >= 15 matches, optimise the pose on the inliers and,
     /// with >= 10 left, track the local map from there; success when the local map gives
     /// `min_inliers`. Returns the state (Ok on success; Lost otherwise).
+    /// With a `budget`, candidates after the first are tried only while the time spent is
+    /// below it ([`relocalisation_candidates_tried`](Self::relocalisation_candidates_tried)
+    /// says how many were).
     pub fn relocalise(
         &mut self,
         map: &mut Map,
         f: &mut TrackedFrame,
         candidates: &[KeyFrameId],
+        budget: Option<std::time::Duration>,
     ) -> TrackingState {
         let started = std::time::Instant::now();
-        let state = self.relocalise_with(map, f, candidates);
+        let state = self.relocalise_with(map, f, candidates, started, budget);
         self.t_relocalisation.record(started.elapsed());
         state
+    }
+
+    /// Candidates the last [`relocalise`](Self::relocalise) tried (all of them unless its
+    /// budget ran out first).
+    pub fn relocalisation_candidates_tried(&self) -> usize {
+        self.reloc_tried
     }
 
     fn relocalise_with(
@@ -372,10 +388,18 @@ impl Tracker {
         map: &mut Map,
         f: &mut TrackedFrame,
         candidates: &[KeyFrameId],
+        started: std::time::Instant,
+        budget: Option<std::time::Duration>,
     ) -> TrackingState {
         let k = self.camera.k();
         let cfg = self.relocalisation.clone();
+        self.reloc_tried = 0;
         for &c in candidates {
+            if self.reloc_tried > 0 && budget.is_some_and(|b| started.elapsed() >= b) {
+                self.relocalisation_budget_cuts += 1;
+                break;
+            }
+            self.reloc_tried += 1;
             f.reset_matches();
             let n = self.match_keyframe(map, c, f, 0.75);
             if n < 15 {
@@ -588,4 +612,55 @@ fn rotation_filter(
         }
     }
     rot.for_each_rejected(|j| m[j as usize] = None);
+}
+
+#[cfg(test)]
+mod relocalisation_budget_tests {
+    use super::*;
+    use crate::map::MapConfig;
+
+    /// A tracker, a lost frame and `n` candidate keyframes that cannot match it.
+    fn setup(n: usize) -> (Tracker, Map, TrackedFrame, Vec<KeyFrameId>) {
+        let camera = PinholeRadtan::pinhole(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let scales: Vec<f64> = (0..8).map(|l| 1.2f64.powi(l)).collect();
+        let tracker = Tracker::new(camera, scales, 100);
+        let mut map = Map::new(MapConfig {
+            max_keyframes: 16,
+            max_map_points: 16,
+            max_features: 100,
+            ..MapConfig::default()
+        });
+        let candidates = (0..n)
+            .filter_map(|_| map.insert_keyframe(|_| {}).ok())
+            .collect();
+        (tracker, map, TrackedFrame::new(100, 640, 480), candidates)
+    }
+
+    #[test]
+    fn without_a_budget_every_candidate_is_tried() {
+        let (mut t, mut map, mut f, c) = setup(5);
+        assert_eq!(c.len(), 5);
+        let st = t.relocalise(&mut map, &mut f, &c, None);
+        assert_eq!(st, TrackingState::Lost);
+        assert_eq!(t.relocalisation_candidates_tried(), 5);
+        assert_eq!(t.relocalisation_budget_cuts, 0);
+    }
+
+    #[test]
+    fn a_spent_budget_stops_after_the_first_candidate() {
+        let (mut t, mut map, mut f, c) = setup(5);
+        let st = t.relocalise(&mut map, &mut f, &c, Some(std::time::Duration::ZERO));
+        assert_eq!(st, TrackingState::Lost);
+        assert_eq!(t.relocalisation_candidates_tried(), 1);
+        assert_eq!(t.relocalisation_budget_cuts, 1);
+        // A generous budget tries them all again.
+        t.relocalise(
+            &mut map,
+            &mut f,
+            &c,
+            Some(std::time::Duration::from_secs(60)),
+        );
+        assert_eq!(t.relocalisation_candidates_tried(), 5);
+        assert_eq!(t.relocalisation_budget_cuts, 1);
+    }
 }
