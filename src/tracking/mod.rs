@@ -508,12 +508,14 @@ impl Tracker {
         let t0 = std::time::Instant::now();
         self.rebase_last_frame(map);
         let mut n = self.track_motion_model(map, f);
+        let (n_motion, mut n_reference) = (n, 0);
         if n < 10 {
             // The reference keyframe's search is for motion the model did not predict: no
             // jump check against that prediction.
             self.prediction = None;
             f.reset_matches();
             n = self.track_reference_keyframe(map, f);
+            n_reference = n;
         }
         self.t_prediction.record(t0.elapsed());
         if n >= 10 {
@@ -524,7 +526,13 @@ impl Tracker {
             self.t_local_map.record(t1.elapsed());
         }
         let ok = n >= self.config.min_inliers;
-        tracing::trace!(frame = f.index, inliers = n, "tracked");
+        tracing::trace!(
+            frame = f.index,
+            inliers = n,
+            motion = n_motion,
+            reference = n_reference,
+            "tracked"
+        );
         self.reference_pose = self
             .reference_kf
             .and_then(|r| map.keyframe(r).map(|k| (r, k.t_cw)));

@@ -151,6 +151,7 @@ impl System {
         tracing::debug!(
             frame,
             reference = self.init.reference_index,
+            features = self.frame.features.len(),
             ?attempt,
             "initialisation attempt"
         );
