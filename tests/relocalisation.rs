@@ -247,3 +247,46 @@ fn a_discarded_young_map_leaves_no_pose_in_the_trajectory() {
     );
     assert_eq!(system.stats.tracked_frames, traj.len());
 }
+
+/// Lost right after initialisation in unmapped space (the view jumps to the far side of the
+/// room two frames after the map began): the young map gets `young_map_patience_frames` to
+/// relocalise, but a new map started meanwhile replaces it at once, so tracking resumes within
+/// a few frames instead of after the patience window; the young map's poses are dropped.
+#[test]
+fn a_young_map_lost_in_unmapped_space_is_replaced_by_a_new_map_at_once() {
+    let i0 = init_frame();
+    let jump = i0 + 2;
+    let frames = jump + 60;
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
+    let c = &seq.config;
+    let mut config = Config::default();
+    config.semidense.enabled = false;
+    let patience = config.tracking.young_map_patience_frames;
+    let mut system = System::new(&c.calibration(), &config, frames, false);
+    let mut f = Frame::new(c.width, c.height);
+    let mut first_ok_after_jump = None;
+    for i in 0..frames {
+        // After the jump: the views of the opposite side of the orbit, at this frame's time.
+        let view = if i < jump { i } else { i + c.frames / 2 };
+        seq.render_frame(view, &mut f);
+        f.timestamp = c.timestamp(i);
+        let r = system.process(&f.gray, Some(&f.rgb), f.timestamp, i as u64);
+        if i > jump && r.state == TrackingState::Ok && first_ok_after_jump.is_none() {
+            first_ok_after_jump = Some(i - jump);
+        }
+    }
+    let after = first_ok_after_jump.expect("tracking never resumed after the jump");
+    eprintln!("tracking resumed {after} frames after the jump (patience {patience})");
+    assert!(
+        after < patience / 2,
+        "tracking resumed {after} frames after the jump: the young map was kept for its patience"
+    );
+    assert_eq!(system.stats.resets, 1, "the young map is discarded once");
+    let t_jump = c.timestamp(jump);
+    let traj = system.trajectory();
+    assert!(
+        traj.iter().all(|p| p.timestamp >= t_jump),
+        "the trajectory mixes poses of the discarded map with the new one's"
+    );
+    assert_eq!(system.stats.tracked_frames, traj.len());
+}

@@ -30,14 +30,26 @@ impl System {
             self.forget_initialisation();
             return st;
         }
-        if !self.limits.new_map_when_lost || self.localize_only || self.active_map_is_young(map) {
+        if !self.limits.new_map_when_lost || self.localize_only {
             return TrackingState::Lost;
         }
-        if self.initialize(map, gray, rgb) == TrackingState::Ok {
-            TrackingState::Ok
-        } else {
-            TrackingState::Lost
+        // Lost in a young map: it gets `young_map_patience_frames` to relocalise (a short
+        // blackout, a covered lens), but a map lost a few frames after it began is more often
+        // a poor start; a new map started meanwhile replaces it at once, so the frames of the
+        // patience window get poses instead of waiting for the reset.
+        let young = self.active_map_is_young(map).then(|| map.active_map());
+        if self.initialize(map, gray, rgb) != TrackingState::Ok {
+            return TrackingState::Lost;
         }
+        if let Some(id) = young.filter(|&id| id != map.active_map()) {
+            tracing::warn!(
+                frame = self.frame.index,
+                map = id,
+                "lost right after initialisation: map replaced by the new one"
+            );
+            self.discard_map(map, id);
+        }
+        TrackingState::Ok
     }
 
     /// The active map has keyframes, but no more than `[tracking] young_map_keyframes`.
@@ -63,13 +75,7 @@ impl System {
             self.reset(map);
             return;
         }
-        let before = self.trajectory.len();
-        self.trajectory
-            .retain(|e| e.reference.and_then(|r| map.map_of(r)) != Some(id));
-        let discarded = before - self.trajectory.len();
-        self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(discarded);
-        self.stats.poses_discarded_by_reset += discarded;
-        map.erase_map(id);
+        self.discard_map(map, id);
         if let Some(&newest) = map.map_ids().last() {
             map.set_active_map(newest);
         }
@@ -77,6 +83,18 @@ impl System {
         self.tracker.reset(TrackingState::Lost);
         self.forget_initialisation();
         self.collapse.reset();
+    }
+
+    /// Erases map `id` with the poses of the frames tracked in it (counted as a reset).
+    /// Tracking, the backfill and the active map are the caller's.
+    fn discard_map(&mut self, map: &mut Map, id: u32) {
+        let before = self.trajectory.len();
+        self.trajectory
+            .retain(|e| e.reference.and_then(|r| map.map_of(r)) != Some(id));
+        let discarded = before - self.trajectory.len();
+        self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(discarded);
+        self.stats.poses_discarded_by_reset += discarded;
+        map.erase_map(id);
         self.stats.resets += 1;
     }
 
