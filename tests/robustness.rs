@@ -353,3 +353,15 @@ fn threaded_a_merge_from_matches_in_one_part_of_the_image_is_placed_right() {
         100.0 * worst
     );
 }
+
+/// A dim room, from rest (`synthetic:low-light`): a quarter of the light and 3 grey levels of
+/// sensor noise after the gain, so fewer, weaker and noisier corners.
+#[test]
+fn a_dim_room_from_rest_is_tracked() {
+    check(&Bar {
+        scene: "low-light",
+        first_pose: 0,
+        min_tracked: 0.99,
+        max_kf_ate_of_path: 0.01,
+    });
+}

@@ -21,8 +21,8 @@ pub struct SynthArgs {
     frames: usize,
     /// Scene and motion: desk (the default orbit), rotation, outward-loop (weakly textured
     /// walls), forward, fast-blur, exposure-step, blackout, repetitive (patterned surfaces),
-    /// moving-objects. `sdslam run synthetic:NAME` runs
-    /// the same scene without writing it.
+    /// moving-objects, low-light (a dim room: a quarter of the light, noisier).
+    /// `sdslam run synthetic:NAME` runs the same scene without writing it.
     #[arg(long, default_value = "desk", value_parser = parse_scene)]
     scene: Scenario,
     /// Lens: `pinhole` (520 px focal, 63 degrees across) or `fisheye` (Kannala-Brandt, 170

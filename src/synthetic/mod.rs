@@ -235,6 +235,15 @@ impl SyntheticSequence {
                 *v = (*v as f32 * gain).round().min(255.0) as u8;
             }
         }
+        let sigma = s.noise_after_gain();
+        if sigma > 0.0 {
+            let seed =
+                texture::mix64(self.config.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            for (k, v) in out.rgb.iter_mut().enumerate() {
+                let n = render::gaussian(texture::mix64(seed ^ k as u64)) * sigma;
+                *v = (*v as f64 + n).round().clamp(0.0, 255.0) as u8;
+            }
+        }
     }
 }
 

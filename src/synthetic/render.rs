@@ -127,7 +127,7 @@ impl Renderer {
 }
 
 /// Approximately standard normal from a hash (sum of four uniforms, rescaled).
-fn gaussian(h: u64) -> f64 {
+pub(super) fn gaussian(h: u64) -> f64 {
     let u = |s: u32| ((h >> s) & 0xFFFF) as f64 / 65535.0;
     (u(0) + u(16) + u(32) + u(48) - 2.0) * (3.0f64).sqrt()
 }

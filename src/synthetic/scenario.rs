@@ -39,10 +39,14 @@ pub enum Scenario {
     /// The orbit with three boxes moving through the scene (across the desk, along the floor,
     /// up and down in front of a wall): points on them are not static.
     MovingObjects,
+    /// The orbit in a dim room, starting from rest: a quarter of the light, and the read noise
+    /// the camera's gain raises with it (3 grey levels after the gain): fewer and weaker
+    /// corners, noisier ones, and little parallax at first.
+    LowLight,
 }
 
 impl Scenario {
-    pub const ALL: [Scenario; 9] = [
+    pub const ALL: [Scenario; 10] = [
         Scenario::Desk,
         Scenario::Rotation,
         Scenario::OutwardLoop,
@@ -52,6 +56,7 @@ impl Scenario {
         Scenario::Blackout,
         Scenario::Repetitive,
         Scenario::MovingObjects,
+        Scenario::LowLight,
     ];
 
     pub fn name(self) -> &'static str {
@@ -65,6 +70,7 @@ impl Scenario {
             Scenario::Blackout => "blackout",
             Scenario::Repetitive => "repetitive",
             Scenario::MovingObjects => "moving-objects",
+            Scenario::LowLight => "low-light",
         }
     }
 
@@ -111,7 +117,18 @@ impl Scenario {
         match self {
             Scenario::ExposureStep if i >= frames / 2 => 1.6,
             Scenario::Blackout if (frames / 3..frames / 3 + 20).contains(&i) => 0.0,
+            Scenario::LowLight => 0.25,
             _ => 1.0,
+        }
+    }
+
+    /// Standard deviation of the noise added after the gain, grey levels (the sensor's read
+    /// noise, which a dim scene's gain amplifies against the signal).
+    pub fn noise_after_gain(self) -> f64 {
+        if self == Scenario::LowLight {
+            3.0
+        } else {
+            0.0
         }
     }
 }
@@ -149,6 +166,16 @@ impl CameraPath {
             | Scenario::FastBlur
             | Scenario::Repetitive
             | Scenario::MovingObjects => self.orbit.pose_at(i),
+            // From rest: the orbit's speed reached over the first 60 frames.
+            Scenario::LowLight => {
+                const RAMP: f64 = 60.0;
+                let eased = if i < RAMP {
+                    i * i / (2.0 * RAMP)
+                } else {
+                    i - RAMP / 2.0
+                };
+                self.orbit.pose_at(eased)
+            }
             Scenario::Rotation => {
                 // Ease in: the first frames barely move, as a robot starting to turn.
                 let ease = (u * 8.0).min(1.0);
