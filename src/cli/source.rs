@@ -111,8 +111,9 @@ pub enum DepthTruth {
     None,
     /// A TUM folder with `depth.txt` (metres x 5000).
     TumFolder(std::path::PathBuf),
-    /// The built-in sequence: rendered exactly at the requested times.
-    Synthetic(SyntheticConfig),
+    /// The built-in sequence: rendered exactly at the requested times (its scene built once,
+    /// on the first request: a run asks keyframe by keyframe).
+    Synthetic(SyntheticConfig, std::cell::OnceCell<Box<SyntheticSequence>>),
 }
 
 impl DepthTruth {
@@ -134,8 +135,8 @@ impl DepthTruth {
                 5000.0,
                 Some(timestamps),
             ),
-            DepthTruth::Synthetic(cfg) => {
-                let seq = SyntheticSequence::new(cfg.clone());
+            DepthTruth::Synthetic(cfg, seq) => {
+                let seq = seq.get_or_init(|| Box::new(SyntheticSequence::new(cfg.clone())));
                 let gt = seq.ground_truth();
                 let mut frame = sdslam::camera::Frame::new(cfg.width, cfg.height);
                 let mut out = Vec::with_capacity(timestamps.len());
@@ -195,7 +196,7 @@ fn open_synthetic(
             .map(|p| p.display().to_string())
             .unwrap_or_else(|| "built-in synthetic camera".into()),
         groundtruth: Some(gt),
-        depth_truth: DepthTruth::Synthetic(cfg),
+        depth_truth: DepthTruth::Synthetic(cfg, Default::default()),
         live: None,
     })
 }
@@ -462,7 +463,7 @@ fn open_fake_camera(
             p.timestamp = src.device().device_time(p.timestamp).unwrap_or(p.timestamp);
         }
     }
-    if let DepthTruth::Synthetic(cfg) = &mut opened.depth_truth {
+    if let DepthTruth::Synthetic(cfg, _) = &mut opened.depth_truth {
         cfg.t0 = src.device().device_time(cfg.t0).unwrap_or(cfg.t0);
     }
     opened.live = Some(src.stats());
