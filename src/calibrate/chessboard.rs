@@ -3,7 +3,7 @@
 //! gradient orthogonality, then linked into the board's grid by growing a lattice from a seed
 //! with linear prediction (tolerates perspective and lens distortion).
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
 use nalgebra::{Matrix2, Vector2};
 
@@ -278,8 +278,9 @@ fn median_neighbour_distance(pts: &[Vector2<f64>]) -> f64 {
     d.get(d.len() / 2).copied().unwrap_or(10.0)
 }
 
-/// Lattice index -> candidate index.
-type Lattice = HashMap<(i32, i32), usize>;
+/// Lattice index -> candidate index (ordered: the growth, which starts from its keys, must not
+/// depend on a hash seed, or a view can be found in one run and missed in the next).
+type Lattice = BTreeMap<(i32, i32), usize>;
 
 /// Tries seeds near the candidates' centre until one grows into a full `cols x rows` lattice.
 /// Returns corner positions indexed `[j][i]` in lattice order (orientation fixed later).
@@ -330,7 +331,7 @@ fn grow_from(
         })
         .min_by(|a, b| (a.1 - p0).norm().total_cmp(&(b.1 - p0).norm()))?
         .0;
-    let mut lat: Lattice = HashMap::new();
+    let mut lat: Lattice = BTreeMap::new();
     let mut used = vec![false; cands.len()];
     for (k, idx) in [((0, 0), seed), ((1, 0), n1), ((0, 1), n2)] {
         lat.insert(k, idx);
