@@ -175,6 +175,13 @@ pub struct SemiDenseConfig {
     /// Capacity of the stored semi-dense pixels over the run (a full store skips keyframes,
     /// counted in the report).
     pub max_points: usize,
+    /// Contrast normalisation (not in the paper, whose lambda_G and sigma_I are grey levels
+    /// of a well-exposed image): a keyframe whose grey-level spread (5th to 95th percentile)
+    /// is below this has both scaled down with its spread (at most 8x), as if its contrast
+    /// were stretched to this. In a dim room (`synthetic:low-light`, spread 23-28) the cloud
+    /// otherwise keeps 1.1k points per keyframe instead of 10k, at the same accuracy. 0 = off.
+    /// Desk, posters, KITTI and EuRoC frames spread 100-240 and are untouched.
+    pub contrast_reference: f64,
 }
 
 impl Default for SemiDenseConfig {
@@ -204,6 +211,7 @@ impl Default for SemiDenseConfig {
             cpus: Vec::new(),
             min_baseline_ratio: 0.05,
             max_points: 8_000_000,
+            contrast_reference: 64.0,
         }
     }
 }
@@ -230,6 +238,7 @@ impl SemiDenseConfig {
                 max_similarity_error: f64::INFINITY,
                 consensus_window: false,
                 prior_cell_px: 0,
+                contrast_reference: 0.0,
                 ..self.clone()
             },
         }
@@ -266,6 +275,11 @@ impl SemiDenseConfig {
             c.prior_cell_px.to_string(),
         );
         add(!c.inter_check, "inter_check", "false".into());
+        add(
+            c.contrast_reference > 0.0,
+            "contrast_reference",
+            c.contrast_reference.to_string(),
+        );
         out
     }
 }
@@ -459,6 +473,12 @@ impl Config {
             if !(v > lo && v <= hi) {
                 return bad(field, &format!("must be {what} (got {v})"));
             }
+        }
+        if !(sd.contrast_reference >= 0.0 && sd.contrast_reference <= 255.0) {
+            return bad(
+                "semidense.contrast_reference",
+                "must be a grey-level spread in [0, 255] (0 = off)",
+            );
         }
         if !(sd.lambda_g >= 0.0 && sd.lambda_g <= 1e4) {
             return bad("semidense.lambda_g", "must be a non-negative number");

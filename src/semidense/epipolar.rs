@@ -53,6 +53,20 @@ impl SearchParams {
     }
 }
 
+impl SearchParams {
+    /// The grey-level thresholds (lambda_G, sigma_I) for an image of `contrast` times the
+    /// reference contrast (theta, a ratio of variances, is unchanged).
+    pub fn for_contrast(mut self, contrast: f32) -> Self {
+        if contrast == 1.0 {
+            return self;
+        }
+        self.lambda_g *= contrast;
+        self.sigma_i2 *= contrast * contrast;
+        self.inv_sigma_i2 = 1.0 / self.sigma_i2;
+        self
+    }
+}
+
 fn angle_steps(deg: f64) -> u8 {
     (deg / 360.0 * ORIENTATION_STEPS as f64)
         .ceil()

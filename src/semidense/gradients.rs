@@ -181,8 +181,47 @@ impl GradientImage {
     }
 }
 
+/// An image's contrast against `reference` grey levels of spread (5th to 95th percentile),
+/// clamped to [1/8, 1]; 1 when `reference` is 0 (off).
+pub fn contrast_scale(gray: &[u8], reference: f64) -> f32 {
+    if reference <= 0.0 || gray.is_empty() {
+        return 1.0;
+    }
+    let mut hist = [0u32; 256];
+    for &v in gray {
+        hist[v as usize] += 1;
+    }
+    let n = gray.len() as u64;
+    let at = |q: u64| {
+        let want = (n * q).div_ceil(100).max(1);
+        let mut seen = 0u64;
+        hist.iter()
+            .position(|&c| {
+                seen += c as u64;
+                seen >= want
+            })
+            .unwrap_or(255)
+    };
+    let spread = at(95).saturating_sub(at(5)) as f64;
+    (spread / reference).clamp(0.125, 1.0) as f32
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn contrast_is_the_spread_against_the_reference_clamped() {
+        use super::contrast_scale;
+        // A ramp 0..=255: 5th to 95th percentile about 230 grey levels apart.
+        let ramp: Vec<u8> = (0..256 * 40).map(|i| (i / 40) as u8).collect();
+        assert_eq!(contrast_scale(&ramp, 100.0), 1.0);
+        assert_eq!(contrast_scale(&ramp, 0.0), 1.0);
+        // A quarter of the light: the spread is a quarter.
+        let dim: Vec<u8> = ramp.iter().map(|&v| v / 4).collect();
+        let c = contrast_scale(&dim, 100.0);
+        assert!((c - 0.57).abs() < 0.02, "{c}");
+        let flat = vec![40u8; 1000];
+        assert_eq!(contrast_scale(&flat, 100.0), 0.125);
+    }
     use super::*;
 
     #[test]

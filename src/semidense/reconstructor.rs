@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::epipolar::{Hypothesis, Intrinsics, SearchParams, StereoPair};
 use super::fusion::fuse;
-use super::gradients::GradientImage;
+use super::gradients::{contrast_scale, GradientImage};
 use super::intra::check_smooth_grow_row;
 use super::{DepthPixel, RegionalPrior};
 use crate::config::SemiDenseConfig;
@@ -41,6 +41,9 @@ struct CachedImage {
     key: Option<u64>,
     last_used: u64,
     image: GradientImage,
+    /// The image's contrast (see [`contrast_scale`]): its lambda_G, and sigma_I when it is
+    /// the reference, are scaled by it.
+    contrast: f32,
 }
 
 pub struct KeyframeReconstructor {
@@ -51,6 +54,7 @@ pub struct KeyframeReconstructor {
     lambda_n: usize,
     consensus_window: bool,
     early_reject_after: usize,
+    contrast_reference: f64,
     /// Gradient images of recent keyframes (least recently used replaced): a keyframe is the
     /// neighbour of about N others, so most are computed once.
     cache: Vec<CachedImage>,
@@ -102,11 +106,13 @@ impl KeyframeReconstructor {
             lambda_n: config.lambda_n,
             consensus_window: config.consensus_window,
             early_reject_after: config.early_reject_after,
+            contrast_reference: config.contrast_reference,
             cache: (0..2 * n + 2)
                 .map(|_| CachedImage {
                     key: None,
                     last_used: 0,
                     image: GradientImage::new(width, height),
+                    contrast: 1.0,
                 })
                 .collect(),
             clock: 0,
@@ -163,7 +169,9 @@ impl KeyframeReconstructor {
         // Least recently used; slots of the keyframe being set up are the most recent.
         let i = (0..self.cache.len()).min_by_key(|&i| self.cache[i].last_used)?;
         let c = &mut self.cache[i];
-        c.image.compute(gray, self.params.lambda_g);
+        c.contrast = contrast_scale(gray, self.contrast_reference);
+        c.image
+            .compute(gray, self.params.for_contrast(c.contrast).lambda_g);
         c.key = Some(key);
         c.last_used = self.clock;
         Some(i)
@@ -248,8 +256,11 @@ impl KeyframeReconstructor {
             let _ = neighbours.push(&self.cache[i].image);
         }
         let reference = &self.cache[self.reference].image;
+        let params = self
+            .params
+            .for_contrast(self.cache[self.reference].contrast);
         let ctx = DepthContext {
-            params: self.params,
+            params,
             lambda_n: self.lambda_n,
             consensus_window: self.consensus_window,
             early_reject_after: self.early_reject_after,
@@ -281,7 +292,7 @@ impl KeyframeReconstructor {
         );
         let t1 = Instant::now();
         let (raw_rho, raw_s2) = (&self.raw_rho, &self.raw_s2);
-        let lambda_g = self.params.lambda_g;
+        let lambda_g = params.lambda_g;
         let intra_rows = |rows: (usize, (&mut [f32], &mut [f32]))| {
             let (y, (r, s)) = rows;
             check_smooth_grow_row(
