@@ -51,9 +51,7 @@ impl SearchParams {
             max_error: c.max_similarity_error as f32,
         }
     }
-}
 
-impl SearchParams {
     /// The grey-level thresholds (lambda_G, sigma_I) for an image of `contrast` times the
     /// reference contrast (theta, a ratio of variances, is unchanged).
     pub fn for_contrast(mut self, contrast: f32) -> Self {

@@ -208,9 +208,10 @@ pub fn contrast_scale(gray: &[u8], reference: f64) -> f32 {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     #[test]
     fn contrast_is_the_spread_against_the_reference_clamped() {
-        use super::contrast_scale;
         // A ramp 0..=255: 5th to 95th percentile about 230 grey levels apart.
         let ramp: Vec<u8> = (0..256 * 40).map(|i| (i / 40) as u8).collect();
         assert_eq!(contrast_scale(&ramp, 100.0), 1.0);
@@ -222,7 +223,6 @@ mod tests {
         let flat = vec![40u8; 1000];
         assert_eq!(contrast_scale(&flat, 100.0), 0.125);
     }
-    use super::*;
 
     #[test]
     fn ramp_has_its_slope_in_intensity_units_per_pixel() {
