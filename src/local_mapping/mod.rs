@@ -402,13 +402,21 @@ impl LocalMapper {
                 map.erase_observation(mp, okf);
             }
         }
+        let mut erased = 0usize;
         for &mp in &self.ba_points {
             if depth_unobservable(map, mp) {
                 map.erase_point(mp);
+                erased += 1;
             } else {
                 map.update_point_geometry(mp);
             }
         }
+        // A rotation in place shows here first: most of a young map's points erased at once.
+        tracing::trace!(
+            points = self.ba_points.len(),
+            depth_unobservable = erased,
+            "local BA written back"
+        );
     }
 
     fn cull_keyframes(&mut self, map: &mut Map, kf: KeyFrameId) {

@@ -403,6 +403,7 @@ impl Tracker {
             f.reset_matches();
             let n = self.match_keyframe(map, c, f, 0.75);
             if n < 15 {
+                tracing::trace!(frame = f.index, candidate = ?c, matches = n, observed = map.keyframe(c).map_or(0, |k| k.observed().count()), "relocalisation: too few matches");
                 continue;
             }
             let (mut pw, mut px, mut s2, mut which) =
@@ -419,6 +420,7 @@ impl Tracker {
                 which.push(j);
             }
             let Some(sol) = crate::geometry::pnp::pnp_ransac(&pw, &px, &s2, &k, &cfg) else {
+                tracing::trace!(frame = f.index, candidate = ?c, matches = n, "relocalisation: no PnP solution");
                 continue;
             };
             for (m, &j) in which.iter().enumerate() {
@@ -427,13 +429,16 @@ impl Tracker {
                 }
             }
             f.t_cw = sol.t_cw;
-            if self.optimize_pose(map, f) < 10 {
+            let refined = self.optimize_pose(map, f);
+            if refined < 10 {
+                tracing::trace!(frame = f.index, candidate = ?c, matches = n, refined, "relocalisation: too few inliers");
                 continue;
             }
             self.reference_kf = Some(c);
             let mut local = std::mem::take(&mut self.local);
             let n = local.track(self, map, f);
             self.local = local;
+            tracing::trace!(frame = f.index, candidate = ?c, refined, local = n, "relocalisation: local map tracked");
             if n >= self.config.min_inliers {
                 // A relocalisation the checks doubt is not taken: the next candidate is tried.
                 let (q, degraded) = self.judge_pose(f, None);
