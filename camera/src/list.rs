@@ -55,7 +55,11 @@ fn check_monotonic(entries: &[ListEntry], path: &Path) -> Result<(), SourceError
         }
     }
     if entries.is_empty() {
-        return Err(list_err(path, 0, "the list names no images"));
+        // A fault of the whole file, not of a line.
+        return Err(SourceError::Invalid {
+            path: path.to_path_buf(),
+            message: "the list names no images (only comments or blank lines)".into(),
+        });
     }
     Ok(())
 }
@@ -245,10 +249,10 @@ mod tests {
 
     #[test]
     fn tum_rejects_empty_and_malformed() {
-        assert!(parse_tum("# only comments\n", p())
-            .unwrap_err()
-            .to_string()
-            .contains("no images"));
+        let err = parse_tum("# only comments\n", p()).unwrap_err().to_string();
+        assert!(err.contains("no images"), "{err}");
+        // A fault of the whole file: no line number (there is no line 0).
+        assert!(!err.contains(":0:"), "{err}");
         assert!(parse_tum("1.0\n", p()).is_err());
         assert!(parse_tum("1.0 a b\n", p()).is_err());
     }
