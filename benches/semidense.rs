@@ -52,7 +52,7 @@ fn semidense(c: &mut Criterion) {
         let mut rec = KeyframeReconstructor::new(k, w, h, &cfg);
         rec.set_reference(1000, Some(&gray));
         for (i, (g, _, t)) in neighbours.iter().enumerate() {
-            rec.add_neighbour(i as u64, Some(g), &(t.0 * t_cw.0.inverse()), 0.0);
+            rec.add_neighbour(i as u64, Some(g), &(t.0 * t_cw.0.inverse()), 0.0, 1.0);
         }
         let s = rec.reconstruct(range);
         eprintln!(

@@ -21,7 +21,8 @@ pub struct SynthArgs {
     frames: usize,
     /// Scene and motion: desk (the default orbit), rotation, outward-loop (weakly textured
     /// walls), forward, fast-blur, exposure-step, blackout, repetitive (patterned surfaces),
-    /// moving-objects, low-light (a dim room: a quarter of the light, noisier).
+    /// moving-objects, low-light (a dim room: a quarter of the light, noisier), auto-exposure
+    /// (the image gain hunting +-25% and jittering from frame to frame).
     /// `sdslam run synthetic:NAME` runs the same scene without writing it.
     #[arg(long, default_value = "desk", value_parser = parse_scene)]
     scene: Scenario,

@@ -86,6 +86,9 @@ pub struct StereoPair {
     rot: u8,
     /// 1 / (K t_ji).z (infinite when the translation has no depth component).
     inv_kt_z: f64,
+    /// Intensity of j over i (exposure, see `photometric`): the reference pixel's intensity
+    /// and gradient modulus are compared with j's at this scale.
+    gain: f32,
 }
 
 /// One inverse-depth hypothesis N(rho, sigma^2).
@@ -105,7 +108,18 @@ impl StereoPair {
             kt,
             rot: quantise_orientation(delta_theta as f32),
             inv_kt_z: 1.0 / kt.z,
+            gain: 1.0,
         }
+    }
+
+    /// The pair with j's intensities `gain` times i's (a finite positive value; else 1).
+    pub fn with_gain(mut self, gain: f32) -> Self {
+        self.gain = if gain.is_finite() && gain > 0.0 {
+            gain
+        } else {
+            1.0
+        };
+        self
     }
 
     /// Searches reference pixel (x, y) with values `p` along its epipolar segment in `target`
@@ -236,8 +250,8 @@ impl StereoPair {
             n,
         };
         let probe = Probe {
-            intensity: p.intensity,
-            modulus: p.modulus,
+            intensity: p.intensity * self.gain,
+            modulus: p.modulus * self.gain,
             a_ref,
             a_line,
         };

@@ -14,6 +14,7 @@ mod inter;
 mod intra;
 mod mapper;
 mod offline;
+mod photometric;
 mod prior;
 mod reconstructor;
 mod scan;
@@ -25,6 +26,7 @@ pub use inter::InterChecker;
 pub use intra::check_smooth_grow_row;
 pub use mapper::{KeyframeDepth, PixelCounts, SemiDenseMapper, SemiDenseStats, STORED_PIXEL_BYTES};
 pub use offline::Densifier;
+pub use photometric::{photometric_gain, MIN_GAIN_MATCHES};
 pub use prior::RegionalPrior;
 pub use reconstructor::{KeyframeReconstructor, StageTimes, MAX_NEIGHBOURS};
 

@@ -192,14 +192,17 @@ impl KeyframeReconstructor {
     }
 
     /// Adds a neighbour: its serial and grey image (may be `None` when cached), the transform
-    /// from the reference camera to it, and the in-plane rotation (radians) of image content
-    /// from the reference to it. False when the capacity is reached or the image is missing.
+    /// from the reference camera to it, the in-plane rotation (radians) of image content
+    /// from the reference to it, and its intensity over the reference's (exposure; 1 = the
+    /// paper's photometric constancy). False when the capacity is reached or the image is
+    /// missing.
     pub fn add_neighbour(
         &mut self,
         key: u64,
         gray: Option<&[u8]>,
         t_ji: &Se3,
         delta_theta: f64,
+        gain: f32,
     ) -> bool {
         if self.neighbours.len() == self.max_neighbours {
             return false;
@@ -208,7 +211,8 @@ impl KeyframeReconstructor {
             return false;
         };
         let _ = self.neighbours.push(i);
-        self.pairs.push(StereoPair::new(&self.k, t_ji, delta_theta));
+        self.pairs
+            .push(StereoPair::new(&self.k, t_ji, delta_theta).with_gain(gain));
         true
     }
 

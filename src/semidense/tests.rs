@@ -137,6 +137,17 @@ type Stats = (usize, f64, f64, f64);
 /// One keyframe with 7 neighbours at exact poses, reconstructed with `cfg`: stats of the fused
 /// and of the intra-checked maps.
 fn keyframe_stages(cfg: &SemiDenseConfig) -> (Stats, Stats) {
+    keyframe_stages_exposed(cfg, 1.0, false)
+}
+
+/// [`keyframe_stages`] with every neighbour's image `exposure` times brighter (clipped, as a
+/// camera's auto exposure gives), its gain measured at projected points of the exact depth
+/// and given to the search when `compensate`.
+fn keyframe_stages_exposed(
+    cfg: &SemiDenseConfig,
+    exposure: f32,
+    compensate: bool,
+) -> (Stats, Stats) {
     let seq = sequence();
     let k = intrinsics(&seq.config);
     let (w, h) = (seq.config.width as usize, seq.config.height as usize);
@@ -144,7 +155,13 @@ fn keyframe_stages(cfg: &SemiDenseConfig) -> (Stats, Stats) {
     let offs: [i64; 7] = [-15, -10, -5, 5, 10, 15, 20];
     let nbs: Vec<Rendered> = offs
         .iter()
-        .map(|o| render(&seq, (150 + o) as usize))
+        .map(|o| {
+            let mut n = render(&seq, (150 + o) as usize);
+            for v in n.gray.iter_mut() {
+                *v = (*v as f32 * exposure).round().min(255.0) as u8;
+            }
+            n
+        })
         .collect();
     let inv: Vec<f32> = r
         .depth
@@ -156,12 +173,28 @@ fn keyframe_stages(cfg: &SemiDenseConfig) -> (Stats, Stats) {
     let range = prior_range(&inv).unwrap();
     let mut rec = KeyframeReconstructor::new(k, w, h, cfg);
     rec.set_reference(1000, Some(&r.gray));
+    let mut scratch = Vec::with_capacity(512);
     for (i, n) in nbs.iter().enumerate() {
+        let t_ji = n.t_cw.0 * r.t_cw.0.inverse();
+        // Matches as ORB would give them: a grid of reference pixels and where they land.
+        let matched = (0..h)
+            .step_by(23)
+            .flat_map(|y| (0..w).step_by(29).map(move |x| (x, y)))
+            .filter(|&(x, y)| r.depth[y * w + x] > 0.0)
+            .map(|(x, y)| {
+                let (u, v) = project_into(&k, &t_ji, x, y, 1.0 / r.depth[y * w + x] as f64);
+                ((x as f32, y as f32), (u as f32, v as f32))
+            });
+        let gain = photometric_gain(&r.gray, &n.gray, w, h, matched, &mut scratch);
+        if compensate {
+            assert!((gain - exposure).abs() < 0.05 * exposure, "gain {gain}");
+        }
         rec.add_neighbour(
             i as u64,
             Some(&n.gray),
-            &(n.t_cw.0 * r.t_cw.0.inverse()),
+            &t_ji,
             0.0,
+            if compensate { gain } else { 1.0 },
         );
     }
     let t = std::time::Instant::now();
@@ -255,6 +288,7 @@ fn paper_mode_switches_every_addition_off_and_says_so() {
         "early_reject_after",
         "min_baseline_ratio",
         "max_similarity_error",
+        "photometric_gain",
     ] {
         assert!(
             names.iter().any(|x| x == n),
@@ -286,4 +320,23 @@ fn paper_mode_switches_every_addition_off_and_says_so() {
         .and_then(|m| m.try_into().ok())
         .unwrap();
     assert_eq!(mode, SemiDenseMode::Paper);
+}
+
+/// Auto exposure between keyframes: neighbours 25% brighter than the keyframe leave the
+/// paper's comparison (eq. 2, intensities as they are) a fraction of the points; with the
+/// measured gain the keyframe gets back the points and accuracy of equal exposures.
+#[test]
+fn exposure_changes_between_keyframes_are_compensated() {
+    let cfg = SemiDenseConfig::default();
+    let (same, _) = keyframe_stages(&cfg);
+    let (raw, _) = keyframe_stages_exposed(&cfg, 1.25, false);
+    let (compensated, _) = keyframe_stages_exposed(&cfg, 1.25, true);
+    assert!(raw.0 * 2 < same.0, "uncompensated {} vs {}", raw.0, same.0);
+    assert!(
+        compensated.0 as f64 > 0.9 * same.0 as f64,
+        "compensated {} vs {}",
+        compensated.0,
+        same.0
+    );
+    assert!(compensated.1 < 0.005 && compensated.3 < same.3 + 0.01);
 }

@@ -43,10 +43,14 @@ pub enum Scenario {
     /// the camera's gain raises with it (3 grey levels after the gain): fewer and weaker
     /// corners, noisier ones, and little parallax at first.
     LowLight,
+    /// The orbit under a camera's auto exposure hunting: the image gain drifts +-25% over
+    /// three seconds and jitters +-4% from frame to frame (a USB camera adjusting to the
+    /// scene), so no two keyframes share an exposure.
+    AutoExposure,
 }
 
 impl Scenario {
-    pub const ALL: [Scenario; 10] = [
+    pub const ALL: [Scenario; 11] = [
         Scenario::Desk,
         Scenario::Rotation,
         Scenario::OutwardLoop,
@@ -57,6 +61,7 @@ impl Scenario {
         Scenario::Repetitive,
         Scenario::MovingObjects,
         Scenario::LowLight,
+        Scenario::AutoExposure,
     ];
 
     pub fn name(self) -> &'static str {
@@ -71,6 +76,7 @@ impl Scenario {
             Scenario::Repetitive => "repetitive",
             Scenario::MovingObjects => "moving-objects",
             Scenario::LowLight => "low-light",
+            Scenario::AutoExposure => "auto-exposure",
         }
     }
 
@@ -118,6 +124,13 @@ impl Scenario {
             Scenario::ExposureStep if i >= frames / 2 => 1.6,
             Scenario::Blackout if (frames / 3..frames / 3 + 20).contains(&i) => 0.0,
             Scenario::LowLight => 0.25,
+            Scenario::AutoExposure => {
+                // A fixed pseudo-random jitter per frame (the same sequence on every run).
+                let h = (i as u32).wrapping_mul(2_654_435_761).rotate_left(13) ^ 0x9e37_79b9;
+                let jitter = (h.wrapping_mul(2_246_822_519) >> 8) as f32 / (1u32 << 24) as f32;
+                let drift = (std::f32::consts::TAU * i as f32 / 90.0).sin();
+                1.0 + 0.25 * drift + 0.04 * (2.0 * jitter - 1.0)
+            }
             _ => 1.0,
         }
     }
@@ -165,6 +178,7 @@ impl CameraPath {
             | Scenario::ExposureStep
             | Scenario::FastBlur
             | Scenario::Repetitive
+            | Scenario::AutoExposure
             | Scenario::MovingObjects => self.orbit.pose_at(i),
             // From rest: the orbit's speed reached over the first 60 frames.
             Scenario::LowLight => {
@@ -234,6 +248,22 @@ mod tests {
         }
         let e = Scenario::from_name("moon").unwrap_err();
         assert!(e.contains("outward-loop") && e.contains("moon"), "{e}");
+    }
+
+    #[test]
+    fn auto_exposure_hunts_and_jitters_within_a_quarter() {
+        let g: Vec<f32> = (0..300)
+            .map(|i| Scenario::AutoExposure.gain(i, 300))
+            .collect();
+        assert!(g.iter().all(|&v| (0.7..=1.3).contains(&v)), "{g:?}");
+        let (lo, hi) = g
+            .iter()
+            .fold((2.0f32, 0.0f32), |(a, b), &v| (a.min(v), b.max(v)));
+        assert!(lo < 0.8 && hi > 1.2, "{lo} {hi}");
+        // Consecutive frames differ (the jitter), by at most drift plus jitter.
+        let steps: Vec<f32> = g.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+        assert!(steps.iter().filter(|&&d| d > 0.005).count() > 150);
+        assert!(steps.iter().all(|&d| d < 0.11));
     }
 
     #[test]

@@ -13,8 +13,8 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use super::{
-    median_rotation, prior_range, DepthPixel, InterChecker, Intrinsics, KeyframeReconstructor,
-    RegionalPrior, MAX_NEIGHBOURS,
+    median_rotation, photometric_gain, prior_range, DepthPixel, InterChecker, Intrinsics,
+    KeyframeReconstructor, RegionalPrior, MAX_NEIGHBOURS,
 };
 use crate::config::SemiDenseConfig;
 use crate::geometry::CloudPoint;
@@ -76,6 +76,8 @@ struct Neighbour {
     t_ji: crate::geometry::Se3,
     /// In-plane rotation of image content from the reference (radians).
     delta_theta: f64,
+    /// Its intensity over the reference's (exposure; 1 when not measured).
+    gain: f32,
     /// Its grey image was copied (its gradients are not cached).
     staged: bool,
 }
@@ -137,6 +139,8 @@ pub struct SemiDenseMapper {
     colour_ref: Vec<u8>,
     gray_nb: Vec<Vec<u8>>,
     scratch_f32: Vec<f32>,
+    /// Patch-mean ratios of the exposure measurement (reused).
+    scratch_gain: Vec<f32>,
     scratch_pixels: Vec<DepthPixel>,
     /// The reference keyframe's regional prior (`[semidense] prior_cell_px`), built under
     /// the map lock with the keyframe-wide one.
@@ -183,6 +187,7 @@ impl SemiDenseMapper {
             colour_ref: Vec::with_capacity(crate::image::colour::residual_len(width, height)),
             gray_nb: (0..n).map(|_| Vec::with_capacity(width * height)).collect(),
             scratch_f32: Vec::with_capacity(max_features.max(64)),
+            scratch_gain: Vec::with_capacity(max_features.max(64)),
             scratch_pixels: Vec::with_capacity(width * height),
             prior: RegionalPrior::new(width, height, config.prior_cell_px),
             stats: SemiDenseStats::default(),
@@ -347,7 +352,7 @@ impl SemiDenseMapper {
             }
             for (k, n) in neighbours.iter().enumerate() {
                 let gray = n.staged.then(|| &self.gray_nb[k][..]);
-                r.add_neighbour(n.serial, gray, &n.t_ji, n.delta_theta);
+                r.add_neighbour(n.serial, gray, &n.t_ji, n.delta_theta, n.gain);
             }
             r.reconstruct_with(rho_range, Some(&self.prior))
         };
@@ -477,6 +482,18 @@ impl SemiDenseMapper {
                 Some((k.keypoints[i].angle, j.keypoints.get(jj as usize)?.angle))
             });
             let delta_theta = median_rotation(pairs, &mut angles);
+            let gain = if self.config.photometric_gain {
+                let (w, h) = (self.reconstructor.width, self.reconstructor.height);
+                let matched = k.observed().filter_map(|(i, mp)| {
+                    let p = map.point(mp)?;
+                    let &(_, jj) = p.observations.iter().find(|(o, _)| *o == nb)?;
+                    let (a, b) = (k.keypoints.get(i)?, j.keypoints.get(jj as usize)?);
+                    Some(((a.ux, a.uy), (b.ux, b.uy)))
+                });
+                photometric_gain(&k.gray, &j.gray, w, h, matched, &mut self.scratch_gain)
+            } else {
+                1.0
+            };
             let slot = neighbours.len();
             let staged = !self.reconstructor.is_cached(j.serial);
             if staged {
@@ -488,6 +505,7 @@ impl SemiDenseMapper {
                 serial: j.serial,
                 t_ji,
                 delta_theta,
+                gain,
                 staged,
             };
             if neighbours.push(n).is_err() {
