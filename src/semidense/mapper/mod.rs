@@ -141,6 +141,8 @@ pub struct SemiDenseMapper {
     scratch_f32: Vec<f32>,
     /// Patch-mean ratios of the exposure measurement (reused).
     scratch_gain: Vec<f32>,
+    /// Keypoints (reference, neighbour) of the points a keyframe pair shares (reused).
+    scratch_shared: Vec<(crate::features::KeyPoint, crate::features::KeyPoint)>,
     scratch_pixels: Vec<DepthPixel>,
     /// The reference keyframe's regional prior (`[semidense] prior_cell_px`), built under
     /// the map lock with the keyframe-wide one.
@@ -188,6 +190,7 @@ impl SemiDenseMapper {
             gray_nb: (0..n).map(|_| Vec::with_capacity(width * height)).collect(),
             scratch_f32: Vec::with_capacity(max_features.max(64)),
             scratch_gain: Vec::with_capacity(max_features.max(64)),
+            scratch_shared: Vec::with_capacity(max_features.max(64)),
             scratch_pixels: Vec::with_capacity(width * height),
             prior: RegionalPrior::new(width, height, config.prior_cell_px),
             stats: SemiDenseStats::default(),
@@ -476,20 +479,27 @@ impl SemiDenseMapper {
             if t_ji.translation.vector.norm() < min_baseline {
                 continue;
             }
-            let pairs = k.observed().filter_map(|(i, mp)| {
-                let p = map.point(mp)?;
-                let &(_, jj) = p.observations.iter().find(|(o, _)| *o == nb)?;
-                Some((k.keypoints[i].angle, j.keypoints.get(jj as usize)?.angle))
-            });
-            let delta_theta = median_rotation(pairs, &mut angles);
+            // The keypoints of the points both observe, found once for the in-plane rotation
+            // and the exposure.
+            self.scratch_shared.clear();
+            for (i, mp) in k.observed() {
+                if self.scratch_shared.len() == self.scratch_shared.capacity() {
+                    break;
+                }
+                let Some(p) = map.point(mp) else { continue };
+                let Some(&(_, jj)) = p.observations.iter().find(|(o, _)| *o == nb) else {
+                    continue;
+                };
+                if let (Some(a), Some(b)) = (k.keypoints.get(i), j.keypoints.get(jj as usize)) {
+                    self.scratch_shared.push((*a, *b));
+                }
+            }
+            let shared = &self.scratch_shared;
+            let delta_theta =
+                median_rotation(shared.iter().map(|(a, b)| (a.angle, b.angle)), &mut angles);
             let gain = if self.config.photometric_gain {
                 let (w, h) = (self.reconstructor.width, self.reconstructor.height);
-                let matched = k.observed().filter_map(|(i, mp)| {
-                    let p = map.point(mp)?;
-                    let &(_, jj) = p.observations.iter().find(|(o, _)| *o == nb)?;
-                    let (a, b) = (k.keypoints.get(i)?, j.keypoints.get(jj as usize)?);
-                    Some(((a.ux, a.uy), (b.ux, b.uy)))
-                });
+                let matched = shared.iter().map(|(a, b)| ((a.ux, a.uy), (b.ux, b.uy)));
                 photometric_gain(&k.gray, &j.gray, w, h, matched, &mut self.scratch_gain)
             } else {
                 1.0
