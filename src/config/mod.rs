@@ -96,7 +96,8 @@ pub enum SemiDenseMode {
     /// the text where it is ambiguous: [`SemiDenseConfig::PAPER_READINGS`]).
     Paper,
     /// The additions on as configured (`early_reject_after`, `min_baseline_ratio`,
-    /// `max_similarity_error`, `consensus_window`, `prior_cell_px`).
+    /// `max_similarity_error`, `consensus_window`, `prior_cell_px`, `min_patch_zncc`,
+    /// `contrast_reference`, `photometric_gain`).
     #[default]
     Tuned,
 }
@@ -154,6 +155,11 @@ pub struct SemiDenseConfig {
     /// grid whose cells search only the inverse depths of the ORB map points around them
     /// (widened by `prior_margin`, within the paper's interval); 0 = the paper's one interval.
     pub prior_cell_px: usize,
+    /// Patch check (not in the paper, see `semidense::patch`): after the intra-keyframe step
+    /// an estimate whose 3 x 3 patch, carried into the first 3 neighbours at its inverse
+    /// depth, correlates (ZNCC) below this with any of them is dropped: a background pixel
+    /// beside an occluding contour that took the foreground's depth. 0 = off.
+    pub min_patch_zncc: f64,
     /// Relative widening of a cell's [min, max] map-point inverse depth.
     pub prior_margin: f64,
     /// Map points needed in a cell and its 8 neighbours for a regional range.
@@ -209,7 +215,8 @@ impl Default for SemiDenseConfig {
             max_similarity_error: 5.99,
             consensus_window: false,
             early_reject_after: 3,
-            prior_cell_px: 0,
+            prior_cell_px: 32,
+            min_patch_zncc: 0.5,
             prior_margin: 0.25,
             prior_min_points: 6,
             nice: 10,
@@ -246,6 +253,7 @@ impl SemiDenseConfig {
                 max_similarity_error: f64::INFINITY,
                 consensus_window: false,
                 prior_cell_px: 0,
+                min_patch_zncc: 0.0,
                 contrast_reference: 0.0,
                 photometric_gain: false,
                 ..self.clone()
@@ -282,6 +290,11 @@ impl SemiDenseConfig {
             c.prior_cell_px > 0,
             "prior_cell_px",
             c.prior_cell_px.to_string(),
+        );
+        add(
+            c.min_patch_zncc > 0.0,
+            "min_patch_zncc",
+            c.min_patch_zncc.to_string(),
         );
         add(!c.inter_check, "inter_check", "false".into());
         add(
@@ -498,6 +511,9 @@ impl Config {
         }
         if !(sd.prior_margin >= 0.0 && sd.prior_margin < 1.0) {
             return bad("semidense.prior_margin", "must be in [0, 1)");
+        }
+        if !(sd.min_patch_zncc >= 0.0 && sd.min_patch_zncc < 1.0) {
+            return bad("semidense.min_patch_zncc", "must be in [0, 1) (0 = off)");
         }
         if sd.prior_cell_px != 0 && !(4..=1024).contains(&sd.prior_cell_px) {
             return bad("semidense.prior_cell_px", "must be 0 (off) or 4..=1024");

@@ -122,6 +122,38 @@ impl StereoPair {
         self
     }
 
+    /// Where reference pixel (x, y) at inverse depth `rho` lands in j (None behind j).
+    #[inline]
+    pub fn project(&self, x: f64, y: f64, rho: f64) -> Option<(f32, f32)> {
+        let h = self.kr * Vector3::new(x, y, 1.0) + self.kt * rho;
+        (h.z > 1e-9).then(|| ((h.x / h.z) as f32, (h.y / h.z) as f32))
+    }
+
+    /// [`project`](Self::project) of the pixels (x + dx, y + dy) for each offset, all at
+    /// inverse depth `rho`: the homogeneous point is linear in the pixel, so each offset
+    /// costs two column additions and a division. False if one lands behind j.
+    #[inline]
+    pub fn project_offsets<const N: usize>(
+        &self,
+        x: f64,
+        y: f64,
+        rho: f64,
+        offsets: &[(isize, isize); N],
+        out: &mut [(f32, f32); N],
+    ) -> bool {
+        let h0 = self.kr * Vector3::new(x, y, 1.0) + self.kt * rho;
+        let (cx, cy) = (self.kr.column(0), self.kr.column(1));
+        for (o, &(dx, dy)) in out.iter_mut().zip(offsets) {
+            let h = h0 + cx * dx as f64 + cy * dy as f64;
+            if h.z <= 1e-9 {
+                return false;
+            }
+            let inv = 1.0 / h.z;
+            *o = ((h.x * inv) as f32, (h.y * inv) as f32);
+        }
+        true
+    }
+
     /// Searches reference pixel (x, y) with values `p` along its epipolar segment in `target`
     /// for inverse depths in [rho_min, rho_max]. `None` when the segment leaves the image,
     /// no candidate fulfils the pixel conditions, or the best match is poor or ill-posed.

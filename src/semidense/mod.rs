@@ -14,6 +14,7 @@ mod inter;
 mod intra;
 mod mapper;
 mod offline;
+mod patch;
 mod photometric;
 mod prior;
 mod reconstructor;

@@ -12,6 +12,7 @@ use super::epipolar::{Hypothesis, Intrinsics, SearchParams, StereoPair};
 use super::fusion::fuse;
 use super::gradients::{contrast_scale, GradientImage};
 use super::intra::check_smooth_grow_row;
+use super::patch::fails_patch_check;
 use super::{DepthPixel, RegionalPrior};
 use crate::config::SemiDenseConfig;
 use crate::geometry::Se3;
@@ -23,6 +24,7 @@ pub use crate::config::MAX_NEIGHBOURS;
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StageTimes {
     pub depth: Duration,
+    /// The intra-keyframe step (III-D) and the patch check after it.
     pub intra: Duration,
     /// Reference pixels searched, and epipolar samples visited over all neighbours.
     pub searched_pixels: u64,
@@ -34,6 +36,8 @@ pub struct StageTimes {
     pub fused: u64,
     pub intra_kept: u64,
     pub grown: u64,
+    /// Of those, estimates the patch check removed (`min_patch_zncc`).
+    pub patch_removed: u64,
 }
 
 struct CachedImage {
@@ -54,6 +58,8 @@ pub struct KeyframeReconstructor {
     lambda_n: usize,
     consensus_window: bool,
     early_reject_after: usize,
+    /// `[semidense] min_patch_zncc` (0 = off).
+    min_patch_zncc: f32,
     contrast_reference: f64,
     /// Gradient images of recent keyframes (least recently used replaced): a keyframe is the
     /// neighbour of about N others, so most are computed once.
@@ -106,6 +112,7 @@ impl KeyframeReconstructor {
             lambda_n: config.lambda_n,
             consensus_window: config.consensus_window,
             early_reject_after: config.early_reject_after,
+            min_patch_zncc: config.min_patch_zncc as f32,
             contrast_reference: config.contrast_reference,
             cache: (0..2 * n + 2)
                 .map(|_| CachedImage {
@@ -328,6 +335,31 @@ impl KeyframeReconstructor {
                 }
             }
         }
+        let patch_removed = AtomicU64::new(0);
+        if self.min_patch_zncc > 0.0 {
+            let (tau, pairs, nb) = (self.min_patch_zncc, &self.pairs[..], &neighbours[..]);
+            let patch_rows = |rows: (usize, (&mut [f32], &mut [f32]))| {
+                let (y, (r, s)) = rows;
+                let mut removed = 0;
+                for x in 0..w {
+                    if s[x] > 0.0 && fails_patch_check(reference, x, y, r[x] as f64, pairs, nb, tau)
+                    {
+                        r[x] = 0.0;
+                        s[x] = 0.0;
+                        removed += 1;
+                    }
+                }
+                patch_removed.fetch_add(removed, Ordering::Relaxed);
+            };
+            run_rows(
+                self.pool.as_ref(),
+                self.gate.as_ref(),
+                &mut self.rho,
+                &mut self.s2,
+                w,
+                patch_rows,
+            );
+        }
         StageTimes {
             depth: t1 - t0,
             intra: t1.elapsed(),
@@ -337,6 +369,7 @@ impl KeyframeReconstructor {
             fused: ctx.fused.load(Ordering::Relaxed),
             intra_kept,
             grown,
+            patch_removed: patch_removed.into_inner(),
         }
     }
 

@@ -221,6 +221,7 @@ fn keyframe_stages_exposed(
 fn keyframe_depth_and_intra_stages_are_accurate() {
     let (fused, intra) = keyframe_stages(&SemiDenseConfig {
         early_reject_after: 0,
+        min_patch_zncc: 0.0,
         ..SemiDenseConfig::default()
     });
     for (n, median, within, beyond) in [fused, intra] {
@@ -231,6 +232,26 @@ fn keyframe_depth_and_intra_stages_are_accurate() {
     }
     // Smoothing and growing: more points, no worse.
     assert!(intra.0 > fused.0 && intra.3 <= fused.3 + 0.002);
+}
+
+/// The patch check after the intra-keyframe step removes a few of the estimates and more
+/// of the bad ones: the share beyond 10% falls, the median does not rise.
+#[test]
+fn patch_check_removes_more_bad_estimates_than_good_ones() {
+    let (_, off) = keyframe_stages(&SemiDenseConfig {
+        min_patch_zncc: 0.0,
+        ..SemiDenseConfig::default()
+    });
+    let (_, on) = keyframe_stages(&SemiDenseConfig::default());
+    assert!(SemiDenseConfig::default().min_patch_zncc > 0.0);
+    assert!(
+        on.0 < off.0 && on.0 as f64 > 0.8 * off.0 as f64,
+        "{} of {} points kept",
+        on.0,
+        off.0
+    );
+    assert!(on.3 < off.3, "beyond 10%: {} vs {}", on.3, off.3);
+    assert!(on.1 <= off.1 + 0.0002, "median {} vs {}", on.1, off.1);
 }
 
 /// The default early rejection of ambiguous pixels keeps the 8,000 points on this

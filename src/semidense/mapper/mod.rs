@@ -117,6 +117,8 @@ pub struct PixelCounts {
     /// Fused pixels the intra-keyframe check kept, and pixels it grew (III-D).
     pub intra_kept: u64,
     pub intra_grown: u64,
+    /// Of those, estimates the patch check dropped (not in the paper; `min_patch_zncc`).
+    pub patch_removed: u64,
     /// Pixels the inter-keyframe check looked at and kept (III-E).
     pub inter_checked: u64,
     pub inter_kept: u64,
@@ -412,6 +414,7 @@ impl SemiDenseMapper {
         c.fused += times.fused;
         c.intra_kept += times.intra_kept;
         c.intra_grown += times.grown;
+        c.patch_removed += times.patch_removed;
         self.stats.keyframes_reconstructed += 1;
     }
 
