@@ -157,6 +157,19 @@ impl GradientImage {
         (self.packed[i] >> 16) as f32 * (1.0 / MODULUS_SCALE)
     }
 
+    /// Bilinear intensity at a sub-pixel position at least one pixel inside.
+    #[inline]
+    pub fn intensity_at(&self, x: f32, y: f32) -> f32 {
+        let (x0, y0) = (x.floor(), y.floor());
+        let (ax, ay) = (x - x0, y - y0);
+        let i = y0 as usize * self.width + x0 as usize;
+        let p = &self.packed;
+        let g = |j: usize| ((p[j] >> 8) & 255) as f32;
+        let top = g(i) + ax * (g(i + 1) - g(i));
+        let bottom = g(i + self.width) + ax * (g(i + self.width + 1) - g(i + self.width));
+        top + ay * (bottom - top)
+    }
+
     /// Bilinear (intensity, modulus) at a sub-pixel position at least one pixel inside.
     #[inline]
     pub fn sample(&self, x: f32, y: f32) -> (f32, f32) {

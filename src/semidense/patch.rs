@@ -31,10 +31,70 @@ const OFFSETS: [(isize, isize); 9] = [
     (1, 1),
 ];
 
+/// A reference pixel's 3 x 3 intensities less their mean, and their sum of squares: computed
+/// once per pixel, correlated with each neighbour.
+struct ReferencePatch {
+    x: f64,
+    y: f64,
+    a: [f32; 9],
+    saa: f32,
+}
+
+impl ReferencePatch {
+    /// None at the image border or for a flat patch.
+    fn new(reference: &GradientImage, x: usize, y: usize) -> Option<Self> {
+        if x == 0 || y == 0 || x + 1 >= reference.width || y + 1 >= reference.height {
+            return None;
+        }
+        let mut a = [0.0f32; 9];
+        for (v, &(dx, dy)) in a.iter_mut().zip(&OFFSETS) {
+            *v = reference
+                .at((x as isize + dx) as usize, (y as isize + dy) as usize)
+                .intensity;
+        }
+        let mean = a.iter().sum::<f32>() / 9.0;
+        a.iter_mut().for_each(|v| *v -= mean);
+        let saa = a.iter().map(|v| v * v).sum::<f32>();
+        (saa >= 9.0 * MIN_PATCH_DEVIATION * MIN_PATCH_DEVIATION).then_some(ReferencePatch {
+            x: x as f64,
+            y: y as f64,
+            a,
+            saa,
+        })
+    }
+
+    /// The correlation with the patch's projection into `target` at inverse depth `rho`;
+    /// None when it leaves the image (or lands behind the camera).
+    fn zncc(&self, rho: f64, pair: &StereoPair, target: &GradientImage) -> Option<f32> {
+        let mut uv = [(0.0f32, 0.0f32); 9];
+        if !pair.project_offsets(self.x, self.y, rho, &OFFSETS, &mut uv) {
+            return None;
+        }
+        let (u_max, v_max) = (
+            target.width.saturating_sub(2) as f32,
+            target.height.saturating_sub(2) as f32,
+        );
+        // With a zero-mean reference, sum a (b - mean b) = sum a b.
+        let (mut sab, mut sb, mut sbb) = (0.0f32, 0.0f32, 0.0f32);
+        for (&a, &(u, v)) in self.a.iter().zip(&uv) {
+            if !(u >= 1.0 && v >= 1.0 && u < u_max && v < v_max) {
+                return None;
+            }
+            let b = target.intensity_at(u, v);
+            sab += a * b;
+            sb += b;
+            sbb += b * b;
+        }
+        let var_b = (sbb - sb * sb / 9.0).max(0.0);
+        Some(sab / (self.saa * var_b).sqrt().max(1e-6))
+    }
+}
+
 /// ZNCC of the 3 x 3 patch around reference pixel (x, y) (at least one pixel inside the
 /// image) with its projection into `target` at inverse depth `rho`, every pixel of the patch
 /// projected on its own (a fronto-parallel patch: rotation and scale between the views are
 /// followed). None when the projection leaves the image or the reference patch is flat.
+#[cfg(test)]
 pub fn patch_zncc(
     reference: &GradientImage,
     x: usize,
@@ -43,38 +103,7 @@ pub fn patch_zncc(
     pair: &StereoPair,
     target: &GradientImage,
 ) -> Option<f32> {
-    if x == 0 || y == 0 || x + 1 >= reference.width || y + 1 >= reference.height {
-        return None;
-    }
-    let mut uv = [(0.0f32, 0.0f32); 9];
-    if !pair.project_offsets(x as f64, y as f64, rho, &OFFSETS, &mut uv) {
-        return None;
-    }
-    let (u_max, v_max) = (
-        target.width.saturating_sub(2) as f32,
-        target.height.saturating_sub(2) as f32,
-    );
-    let (mut a, mut b) = ([0.0f32; 9], [0.0f32; 9]);
-    for (k, (&(dx, dy), &(u, v))) in OFFSETS.iter().zip(&uv).enumerate() {
-        if !(u >= 1.0 && v >= 1.0 && u < u_max && v < v_max) {
-            return None;
-        }
-        let (xi, yi) = ((x as isize + dx) as usize, (y as isize + dy) as usize);
-        a[k] = reference.at(xi, yi).intensity;
-        b[k] = target.sample(u, v).0;
-    }
-    let (ma, mb) = (a.iter().sum::<f32>() / 9.0, b.iter().sum::<f32>() / 9.0);
-    let (mut sab, mut saa, mut sbb) = (0.0f32, 0.0f32, 0.0f32);
-    for (&ai, &bi) in a.iter().zip(&b) {
-        let (da, db) = (ai - ma, bi - mb);
-        sab += da * db;
-        saa += da * da;
-        sbb += db * db;
-    }
-    if saa < 9.0 * MIN_PATCH_DEVIATION * MIN_PATCH_DEVIATION {
-        return None;
-    }
-    Some(sab / (saa * sbb).sqrt().max(1e-6))
+    ReferencePatch::new(reference, x, y)?.zncc(rho, pair, target)
 }
 
 /// The patch correlations of reference pixel (x, y) at `rho` in the first
@@ -87,10 +116,15 @@ fn judged<'a>(
     pairs: &'a [StereoPair],
     neighbours: &'a [&'a GradientImage],
 ) -> impl Iterator<Item = f32> + 'a {
-    pairs
-        .iter()
-        .zip(neighbours)
-        .filter_map(move |(pair, img)| patch_zncc(reference, x, y, rho, pair, img))
+    let patch = ReferencePatch::new(reference, x, y);
+    patch
+        .into_iter()
+        .flat_map(move |p| {
+            pairs
+                .iter()
+                .zip(neighbours)
+                .filter_map(move |(pair, img)| p.zncc(rho, pair, img))
+        })
         .take(PATCH_NEIGHBOURS)
 }
 
