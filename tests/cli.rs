@@ -975,9 +975,11 @@ fn semidense_final_writes_both_clouds_and_densify_takes_its_keyframes() {
         };
         assert!(n("search_abandoned") + n("fused") <= n("searched"), "{px}");
         assert!(n("intra_kept") <= n("fused"), "{px}");
+        // The patch check (tuned mode) removes some of what the intra step passed on.
+        assert!(n("patch_removed") > 0, "{px}");
         assert_eq!(
             n("inter_checked"),
-            n("intra_kept") + n("intra_grown"),
+            n("intra_kept") + n("intra_grown") - n("patch_removed"),
             "{px}"
         );
         assert!(n("inter_kept") < n("inter_checked"), "{px}");
@@ -1035,6 +1037,7 @@ fn semidense_final_writes_both_clouds_and_densify_takes_its_keyframes() {
     let r = report(&out);
     assert_eq!(r["semidense_mode"], "paper");
     assert_eq!(r["semidense_non_paper_settings"], serde_json::json!({}));
+    assert_eq!(r["semidense_pixels"]["patch_removed"], 0);
     assert!(r["semidense_final"].is_null());
 }
 
