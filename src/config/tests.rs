@@ -35,11 +35,17 @@ fn partial_file_overrides_and_unknown_keys_fail() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("orb.scale_factor"), "{e}");
-    for bad in ["prior_margin = 1.5", "prior_cell_px = 2"] {
+    for bad in [
+        "prior_margin = 1.5",
+        "prior_cell_px = 2",
+        "min_patch_zncc = 1.5",
+        "min_patch_zncc = -0.1",
+    ] {
         let e = Config::parse(&format!("[semidense]\n{bad}\n"), Path::new("c.toml"))
             .unwrap_err()
             .to_string();
-        assert!(e.contains("semidense.prior_"), "{e}");
+        let field = bad.split(' ').next().unwrap_or_default();
+        assert!(e.contains(&format!("semidense.{field}")), "{e}");
     }
 }
 
