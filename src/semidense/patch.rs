@@ -90,22 +90,6 @@ impl ReferencePatch {
     }
 }
 
-/// ZNCC of the 3 x 3 patch around reference pixel (x, y) (at least one pixel inside the
-/// image) with its projection into `target` at inverse depth `rho`, every pixel of the patch
-/// projected on its own (a fronto-parallel patch: rotation and scale between the views are
-/// followed). None when the projection leaves the image or the reference patch is flat.
-#[cfg(test)]
-pub fn patch_zncc(
-    reference: &GradientImage,
-    x: usize,
-    y: usize,
-    rho: f64,
-    pair: &StereoPair,
-    target: &GradientImage,
-) -> Option<f32> {
-    ReferencePatch::new(reference, x, y)?.zncc(rho, pair, target)
-}
-
 /// The patch correlations of reference pixel (x, y) at `rho` in the first
 /// [`PATCH_NEIGHBOURS`] neighbours where it can be judged, in search order.
 fn judged<'a>(
@@ -128,22 +112,9 @@ fn judged<'a>(
         .take(PATCH_NEIGHBOURS)
 }
 
-/// The worst patch correlation of reference pixel (x, y) at `rho` over the first
-/// [`PATCH_NEIGHBOURS`] neighbours where it can be judged; None where it can be judged in none.
-#[cfg(test)]
-pub fn worst_patch_zncc(
-    reference: &GradientImage,
-    x: usize,
-    y: usize,
-    rho: f64,
-    pairs: &[StereoPair],
-    neighbours: &[&GradientImage],
-) -> Option<f32> {
-    judged(reference, x, y, rho, pairs, neighbours).reduce(f32::min)
-}
-
-/// Whether the estimate fails the check: its worst correlation is below `min_zncc` (the
-/// same as `worst_patch_zncc(..) < min_zncc`, stopping at the first neighbour below).
+/// Whether the estimate fails the check: its worst correlation over the first
+/// [`PATCH_NEIGHBOURS`] neighbours where it can be judged is below `min_zncc` (stopping at the
+/// first one below). An estimate judged nowhere passes.
 pub fn fails_patch_check(
     reference: &GradientImage,
     x: usize,

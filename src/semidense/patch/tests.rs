@@ -21,6 +21,31 @@ fn noise(x: usize, y: usize, seed: u32) -> u8 {
     40 + (h % 176) as u8
 }
 
+/// ZNCC of the 3 x 3 patch around (x, y) with its projection into `target` at `rho`; None
+/// when it cannot be judged (border, flat patch, projection off the image).
+fn patch_zncc(
+    reference: &GradientImage,
+    x: usize,
+    y: usize,
+    rho: f64,
+    pair: &StereoPair,
+    target: &GradientImage,
+) -> Option<f32> {
+    ReferencePatch::new(reference, x, y)?.zncc(rho, pair, target)
+}
+
+/// The worst correlation over the neighbours the check looks at.
+fn worst_patch_zncc(
+    reference: &GradientImage,
+    x: usize,
+    y: usize,
+    rho: f64,
+    pairs: &[StereoPair],
+    neighbours: &[&GradientImage],
+) -> Option<f32> {
+    judged(reference, x, y, rho, pairs, neighbours).reduce(f32::min)
+}
+
 fn image(gray: &[u8]) -> GradientImage {
     let mut g = GradientImage::new(W, H);
     g.compute(gray, 8.0);
