@@ -49,6 +49,11 @@ impl StageTimer {
         self.max_ms = self.max_ms.max(ms);
     }
 
+    /// Samples kept before thinning starts.
+    pub fn capacity(&self) -> usize {
+        self.samples_ms.capacity()
+    }
+
     pub fn count(&self) -> usize {
         self.total
     }

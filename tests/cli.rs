@@ -955,6 +955,10 @@ fn semidense_final_writes_both_clouds_and_densify_takes_its_keyframes() {
     assert!(r["semidense_non_paper_settings"]["early_reject_after"].is_string());
     let f = &r["semidense_final"];
     assert!(f["keyframes"].as_u64().unwrap() >= 5, "{f}");
+    // Every reconstructed keyframe's stages are timed, whichever worker ran it.
+    for stage in ["keyframe_ms", "depth_ms", "intra_ms", "inter_ms"] {
+        assert_eq!(f[stage]["count"], f["keyframes"], "{stage}: {f}");
+    }
     let read = |name: &str| {
         let p = run.join(name);
         sdslam::io::decode_ply(&std::fs::read(&p).unwrap(), &p)

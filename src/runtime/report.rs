@@ -164,7 +164,12 @@ pub struct SemiDenseFinalReport {
     pub online_pixels: crate::semidense::PixelCounts,
     /// Wall time of the whole reconstruction (both cores), seconds.
     pub total_s: f64,
+    /// Per keyframe: all its stages (one core), then the depth, intra (with the patch
+    /// check) and inter-keyframe stages.
     pub keyframe_ms: Percentiles,
+    pub depth_ms: Percentiles,
+    pub intra_ms: Percentiles,
+    pub inter_ms: Percentiles,
     /// Accuracy of the online cloud (`semidense_online.ply`) for comparison.
     pub online_accuracy: Option<crate::eval::CloudAccuracy>,
     pub online_points: usize,

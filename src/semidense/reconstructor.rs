@@ -136,6 +136,16 @@ impl KeyframeReconstructor {
         }
     }
 
+    /// Takes the worker pool out: rows then run on the calling thread (the end-of-session
+    /// pass runs two reconstructors at once instead).
+    pub fn take_pool(&mut self) -> Option<rayon::ThreadPool> {
+        self.pool.take()
+    }
+
+    pub fn restore_pool(&mut self, pool: Option<rayon::ThreadPool>) {
+        self.pool = pool;
+    }
+
     pub fn max_neighbours(&self) -> usize {
         self.max_neighbours
     }

@@ -136,6 +136,9 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
                 online_pixels: sd.stats.pixels.clone(),
                 total_s: final_s,
                 keyframe_ms: fin.t_keyframe.percentiles(),
+                depth_ms: fin.t_depth.percentiles(),
+                intra_ms: fin.t_intra.percentiles(),
+                inter_ms: fin.t_inter.percentiles(),
                 online_accuracy: cloud_accuracy(s, &online, &keyframes),
                 online_points: online.len(),
             });

@@ -60,8 +60,8 @@ impl System {
     /// The paper's end-of-session reconstruction ("after a full bundle adjustment"): after
     /// [`finish`](Self::finish) (with the final BA on), every keyframe of the map now is
     /// reconstructed with its covisible neighbours of the final map (loop revisits
-    /// included) and checked against all of them, on `[semidense] threads` workers at
-    /// normal priority. The online results stay as they are. Call before
+    /// included) and checked against all of them, at normal priority: two keyframes at a
+    /// time (one per core) when `[semidense] threads` >= 2. The online results stay as they are. Call before
     /// [`release_working_memory`](Self::release_working_memory) (it needs the keyframe
     /// images). Returns the new results; `None` when semi-dense mapping is off or the run
     /// is not finished.

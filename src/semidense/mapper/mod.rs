@@ -6,9 +6,12 @@
 //! keyframe allocates nothing.
 
 mod output;
+mod workspace;
 use output::{pose_and_scale_now, reanchor, sample_anchors, Anchor};
+use workspace::{Sink, Workspace};
 
 use std::collections::VecDeque;
+use std::sync::atomic::AtomicUsize;
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -68,20 +71,6 @@ struct CloudPixel {
     rgb: [u8; 3],
 }
 
-/// A neighbour as read from the map for one reconstruction.
-struct Neighbour {
-    id: KeyFrameId,
-    serial: u64,
-    /// Reference camera to this neighbour's camera.
-    t_ji: crate::geometry::Se3,
-    /// In-plane rotation of image content from the reference (radians).
-    delta_theta: f64,
-    /// Its intensity over the reference's (exposure; 1 when not measured).
-    gain: f32,
-    /// Its grey image was copied (its gradients are not cached).
-    staged: bool,
-}
-
 /// Counters for the report.
 #[derive(Clone, Debug, Default)]
 pub struct SemiDenseStats {
@@ -124,9 +113,68 @@ pub struct PixelCounts {
     pub inter_kept: u64,
 }
 
+/// A second worker's results until they join the mapper's.
+struct Store {
+    entries: Vec<KeyframeDepth>,
+    arena: Vec<CloudPixel>,
+    stats: SemiDenseStats,
+    t_depth: StageTimer,
+    t_intra: StageTimer,
+}
+
+impl Store {
+    fn with_capacity(entries: usize, samples: usize) -> Self {
+        Store {
+            entries: Vec::with_capacity(entries),
+            // Grows as keyframes come (end of session: no frame deadline).
+            arena: Vec::new(),
+            stats: SemiDenseStats::default(),
+            t_depth: StageTimer::with_capacity(samples),
+            t_intra: StageTimer::with_capacity(samples),
+        }
+    }
+
+    fn sink<'a>(&'a mut self, room: &'a AtomicUsize) -> Sink<'a> {
+        Sink {
+            entries: &mut self.entries,
+            arena: &mut self.arena,
+            stats: &mut self.stats,
+            t_depth: &mut self.t_depth,
+            t_intra: &mut self.t_intra,
+            room,
+        }
+    }
+}
+
+impl SemiDenseStats {
+    /// Adds another worker's counts (its busy time too: `busy_s` then sums workers).
+    fn absorb(&mut self, o: &SemiDenseStats) {
+        self.keyframes_reconstructed += o.keyframes_reconstructed;
+        self.keyframes_skipped += o.keyframes_skipped;
+        self.skipped_culled += o.skipped_culled;
+        self.skipped_no_neighbours += o.skipped_no_neighbours;
+        self.skipped_overload += o.skipped_overload;
+        self.skipped_cut += o.skipped_cut;
+        self.busy_s += o.busy_s;
+        let (a, b) = (&mut self.pixels, &o.pixels);
+        a.searched += b.searched;
+        a.search_abandoned += b.search_abandoned;
+        a.fused += b.fused;
+        a.intra_kept += b.intra_kept;
+        a.intra_grown += b.intra_grown;
+        a.patch_removed += b.patch_removed;
+        a.inter_checked += b.inter_checked;
+        a.inter_kept += b.inter_kept;
+    }
+}
+
 pub struct SemiDenseMapper {
     config: SemiDenseConfig,
-    reconstructor: KeyframeReconstructor,
+    /// The reconstructor and buffers keyframes are reconstructed in (the end-of-session
+    /// pass adds a second, see [`reconstruct_all`](Self::reconstruct_all)).
+    ws: Workspace,
+    /// Capacity of the per-keyframe feature scratch (for a second workspace).
+    max_features: usize,
     inter: InterChecker,
     pending: VecDeque<KeyFrameId>,
     /// Serial of the newest keyframe received: keyframes come in creation order, so a
@@ -135,20 +183,6 @@ pub struct SemiDenseMapper {
     received_serial: u64,
     entries: Vec<KeyframeDepth>,
     arena: Vec<CloudPixel>,
-    // Staging copies taken under the map lock, processed without it.
-    gray_ref: Vec<u8>,
-    /// The reference keyframe's colour residuals (see [`crate::image::colour`]).
-    colour_ref: Vec<u8>,
-    gray_nb: Vec<Vec<u8>>,
-    scratch_f32: Vec<f32>,
-    /// Patch-mean ratios of the exposure measurement (reused).
-    scratch_gain: Vec<f32>,
-    /// Keypoints (reference, neighbour) of the points a keyframe pair shares (reused).
-    scratch_shared: Vec<(crate::features::KeyPoint, crate::features::KeyPoint)>,
-    scratch_pixels: Vec<DepthPixel>,
-    /// The reference keyframe's regional prior (`[semidense] prior_cell_px`), built under
-    /// the map lock with the keyframe-wide one.
-    prior: RegionalPrior,
     pub stats: SemiDenseStats,
     pub t_depth: StageTimer,
     pub t_intra: StageTimer,
@@ -164,7 +198,7 @@ impl SemiDenseMapper {
     /// keyframes and `max_points` stored pixels.
     /// Online: the per-pixel work steps aside while tracking works on a frame.
     pub fn set_foreground_gate(&mut self, gate: crate::threads::ForegroundGate) {
-        self.reconstructor.set_foreground_gate(gate);
+        self.ws.reconstructor.set_foreground_gate(gate);
     }
 
     pub fn new(
@@ -176,25 +210,18 @@ impl SemiDenseMapper {
         max_features: usize,
     ) -> Self {
         let config = &config.in_force();
-        let reconstructor = KeyframeReconstructor::new(k, width, height, config);
-        let n = reconstructor.max_neighbours();
+        let ws = Workspace::new(k, width, height, config, max_features);
+        let n = ws.reconstructor.max_neighbours();
         let timer = || StageTimer::with_capacity(max_keyframes.max(16));
         SemiDenseMapper {
             config: config.clone(),
             inter: InterChecker::new(k, width, height, n),
-            reconstructor,
+            ws,
             pending: VecDeque::with_capacity(config.keyframe_delay + 2),
             received_serial: 0,
             entries: Vec::with_capacity(max_keyframes),
             arena: Vec::with_capacity(config.max_points),
-            gray_ref: Vec::with_capacity(width * height),
-            colour_ref: Vec::with_capacity(crate::image::colour::residual_len(width, height)),
-            gray_nb: (0..n).map(|_| Vec::with_capacity(width * height)).collect(),
-            scratch_f32: Vec::with_capacity(max_features.max(64)),
-            scratch_gain: Vec::with_capacity(max_features.max(64)),
-            scratch_shared: Vec::with_capacity(max_features.max(64)),
-            scratch_pixels: Vec::with_capacity(width * height),
-            prior: RegionalPrior::new(width, height, config.prior_cell_px),
+            max_features,
             stats: SemiDenseStats::default(),
             t_depth: timer(),
             t_intra: timer(),
@@ -206,17 +233,13 @@ impl SemiDenseMapper {
     /// Drops the buffers only reconstruction needs (the run is over); the cloud, entries and
     /// depth maps stay readable.
     pub fn release_working_memory(&mut self) {
-        self.reconstructor.release_working_memory();
+        self.ws.release();
         self.inter.release_working_memory();
-        self.gray_ref = Vec::new();
-        self.colour_ref = Vec::new();
-        self.gray_nb = Vec::new();
-        self.scratch_pixels = Vec::new();
     }
 
     /// Forgets everything (the map was reset: old keyframes are in another frame).
     pub fn reset(&mut self) {
-        self.reconstructor.forget();
+        self.ws.reconstructor.forget();
         self.pending.clear();
         self.received_serial = 0;
         self.entries.clear();
@@ -263,14 +286,117 @@ impl SemiDenseMapper {
         self.check_ready(map, true);
     }
 
-    /// Reconstructs `keyframes` in their order and checks each against all its neighbours:
-    /// the end-of-session reconstruction (every keyframe is there at once).
+    /// Reconstructs `keyframes` and checks each against all its neighbours: the
+    /// end-of-session reconstruction (every keyframe is there at once). With `threads` >= 2,
+    /// two keyframes are reconstructed at a time, one per core, each in its own workspace
+    /// (rows are not split): part of a keyframe's work is serial (gradients of new
+    /// neighbours, set-up, export), and splitting rows left a core idle there. One worker
+    /// takes keyframes from the front and the other from the back, so each mostly finds
+    /// its neighbours' gradients in its own cache; the results are stored in keyframe
+    /// order, whichever worker made them, so the cloud does not depend on the split. The
+    /// checks then split rows over the pool.
     pub fn reconstruct_all(&mut self, map: &Mutex<Map>, keyframes: &[KeyFrameId]) {
         for &k in keyframes {
             self.receive(map, k);
-            self.pending.push_back(k);
         }
-        self.flush(map);
+        let pool = self.ws.reconstructor.take_pool();
+        if pool.is_some() && keyframes.len() >= 2 {
+            self.reconstruct_two_at_a_time(map, keyframes);
+        } else {
+            for &k in keyframes {
+                self.reconstruct(map, k);
+            }
+        }
+        self.ws.reconstructor.restore_pool(pool);
+        self.check_ready(map, true);
+    }
+
+    /// [`reconstruct_all`](Self::reconstruct_all)'s two workers (the calling thread takes
+    /// the front).
+    fn reconstruct_two_at_a_time(&mut self, map: &Mutex<Map>, keyframes: &[KeyFrameId]) {
+        let (k, w, h) = {
+            let r = &self.ws.reconstructor;
+            (r.k, r.width, r.height)
+        };
+        let serial = SemiDenseConfig {
+            threads: 1,
+            ..self.config.clone()
+        };
+        let mut second = Workspace::new(k, w, h, &serial, self.max_features);
+        // Next keyframe from the front, and one past the next from the back.
+        let next = Mutex::new((0, keyframes.len()));
+        let take = |front: bool| {
+            let mut g = next.lock().unwrap_or_else(|e| e.into_inner());
+            let (f, b) = *g;
+            (f < b).then(|| {
+                if front {
+                    g.0 += 1;
+                    keyframes[f]
+                } else {
+                    g.1 -= 1;
+                    keyframes[b - 1]
+                }
+            })
+        };
+        let room = AtomicUsize::new(self.arena.capacity() - self.arena.len());
+        let free_entries = self.entries.capacity() - self.entries.len();
+        let config = &self.config;
+        let mut back = Store::with_capacity(free_entries, self.t_depth.capacity());
+        let mut front = Sink {
+            entries: &mut self.entries,
+            arena: &mut self.arena,
+            stats: &mut self.stats,
+            t_depth: &mut self.t_depth,
+            t_intra: &mut self.t_intra,
+            room: &room,
+        };
+        let (ws, second, back_store, room) = (&mut self.ws, &mut second, &mut back, &room);
+        let joined = std::thread::scope(|s| {
+            let spawned = std::thread::Builder::new()
+                .name("semidense-final".into())
+                .spawn_scoped(s, move || {
+                    let mut out = back_store.sink(room);
+                    while let Some(kf) = take(false) {
+                        second.reconstruct(config, map, kf, &mut out);
+                    }
+                });
+            while let Some(kf) = take(true) {
+                ws.reconstruct(config, map, kf, &mut front);
+            }
+            spawned.map(|h| h.join().is_ok())
+        });
+        match joined {
+            Ok(true) => {}
+            // Not spawned: the front worker took every keyframe.
+            Err(e) => tracing::warn!("end-of-session reconstruction on one core: {e}"),
+            Ok(false) => tracing::error!("an end-of-session reconstruction worker panicked"),
+        }
+        self.absorb(back);
+    }
+
+    /// Appends a second worker's keyframes (taken from the back: stored in reverse).
+    fn absorb(&mut self, back: Store) {
+        for mut e in back.entries.into_iter().rev() {
+            let pixels = &back.arena[e.start..e.start + e.len];
+            if self.entries.len() == self.entries.capacity()
+                || self.arena.len() + pixels.len() > self.arena.capacity()
+            {
+                self.stats.keyframes_skipped += 1;
+                self.stats.skipped_overload += 1;
+                self.stats.keyframes_reconstructed -= 1;
+                continue;
+            }
+            e.start = self.arena.len();
+            self.arena.extend_from_slice(pixels);
+            self.entries.push(e);
+        }
+        self.stats.absorb(&back.stats);
+        for &ms in back.t_depth.samples_ms() {
+            self.t_depth.record_ms(ms as f64);
+        }
+        for &ms in back.t_intra.samples_ms() {
+            self.t_intra.record_ms(ms as f64);
+        }
     }
 
     /// End of an interrupted run: drops the keyframes still waiting for reconstruction
@@ -322,228 +448,16 @@ impl SemiDenseMapper {
     }
 
     fn reconstruct(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
-        let t0 = Instant::now();
-        let Some((t_cw, timestamp, serial, has_color, neighbours, rho_range, anchors)) =
-            self.snapshot(map, kf)
-        else {
-            self.stats.keyframes_skipped += 1;
-            let alive = map
-                .lock()
-                .map(|m| m.keyframe(kf).is_some())
-                .unwrap_or(false);
-            if alive {
-                self.stats.skipped_no_neighbours += 1;
-            } else {
-                self.stats.skipped_culled += 1;
-            }
-            return;
+        let room = AtomicUsize::new(self.arena.capacity() - self.arena.len());
+        let mut out = Sink {
+            entries: &mut self.entries,
+            arena: &mut self.arena,
+            stats: &mut self.stats,
+            t_depth: &mut self.t_depth,
+            t_intra: &mut self.t_intra,
+            room: &room,
         };
-        let (w, h) = (self.reconstructor.width, self.reconstructor.height);
-        if self.entries.len() == self.entries.capacity()
-            || self.arena.len() + w * h > self.arena.capacity()
-        {
-            self.stats.keyframes_skipped += 1;
-            self.stats.skipped_overload += 1;
-            return;
-        }
-        let times = {
-            // Neighbour poses were read under the lock with the reference's; grey images
-            // were copied only for keyframes whose gradients are not cached.
-            let r = &mut self.reconstructor;
-            if !r.set_reference(serial, Some(&self.gray_ref)) {
-                self.stats.keyframes_skipped += 1;
-                self.stats.skipped_overload += 1;
-                return;
-            }
-            for (k, n) in neighbours.iter().enumerate() {
-                let gray = n.staged.then(|| &self.gray_nb[k][..]);
-                r.add_neighbour(n.serial, gray, &n.t_ji, n.delta_theta, n.gain);
-            }
-            r.reconstruct_with(rho_range, Some(&self.prior))
-        };
-        self.reconstructor.export(&mut self.scratch_pixels);
-        let start = self.arena.len();
-        for p in &self.scratch_pixels {
-            let i = p.idx as usize;
-            let rgb = if has_color {
-                crate::image::colour::colour_at(&self.gray_ref, &self.colour_ref, w, i % w, i / w)
-            } else {
-                [self.gray_ref[i]; 3]
-            };
-            self.arena.push(CloudPixel {
-                raw: *p,
-                rho: 0.0,
-                rgb,
-            });
-        }
-        let (mut nb, mut nb_serials) = (heapless::Vec::new(), heapless::Vec::new());
-        for n in &neighbours {
-            let _ = nb.push(n.id);
-            let _ = nb_serials.push(n.serial);
-        }
-        self.entries.push(KeyframeDepth {
-            keyframe: kf,
-            timestamp,
-            t_cw,
-            neighbours: nb,
-            neighbour_serials: nb_serials,
-            relative_to: None,
-            start,
-            len: self.arena.len() - start,
-            anchors,
-            scale: 1.0,
-            checked: false,
-            unverifiable: false,
-            elapsed_ms: t0.elapsed().as_secs_f64() * 1e3,
-        });
-        self.stats.busy_s += t0.elapsed().as_secs_f64();
-        tracing::debug!(
-            timestamp,
-            neighbours = neighbours.len(),
-            searched_pixels = times.searched_pixels,
-            samples = times.samples,
-            points = self.arena.len() - start,
-            depth_ms = times.depth.as_secs_f64() * 1e3,
-            "semi-dense keyframe"
-        );
-        self.t_depth.record(times.depth);
-        self.t_intra.record(times.intra);
-        let c = &mut self.stats.pixels;
-        c.searched += times.searched_pixels;
-        c.search_abandoned += times.abandoned;
-        c.fused += times.fused;
-        c.intra_kept += times.intra_kept;
-        c.intra_grown += times.grown;
-        c.patch_removed += times.patch_removed;
-        self.stats.keyframes_reconstructed += 1;
-    }
-
-    /// Copies what reconstruction needs out of the map (short lock): images, poses, the
-    /// neighbours with relative poses and in-plane rotations, and the inverse-depth prior.
-    #[allow(clippy::type_complexity)]
-    fn snapshot(
-        &mut self,
-        map: &Mutex<Map>,
-        kf: KeyFrameId,
-    ) -> Option<(
-        CameraFromWorld,
-        f64,
-        u64,
-        bool,
-        heapless::Vec<Neighbour, MAX_NEIGHBOURS>,
-        (f64, f64),
-        heapless::Vec<Anchor, MAX_ANCHORS>,
-    )> {
-        let map = map.lock().unwrap_or_else(|e| e.into_inner());
-        let k = map.keyframe(kf)?;
-        if k.gray.len() != self.gray_ref.capacity() {
-            return None;
-        }
-        // Prior from the ORB map points' inverse depths in this keyframe; a spread of them
-        // anchors the keyframe's depth scale.
-        self.scratch_f32.clear();
-        self.prior.clear();
-        let anchors = sample_anchors(&map, k, &k.t_cw, 1.0);
-        for (i, mp) in k.observed() {
-            let Some(p) = map.point(mp) else { continue };
-            let x = k.t_cw.transform(&p.position);
-            // In front of the camera (NaN is not).
-            if x.z.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-                continue;
-            }
-            let rho = (1.0 / x.z) as f32;
-            if self.scratch_f32.len() < self.scratch_f32.capacity() {
-                self.scratch_f32.push(rho);
-            }
-            if let Some(kp) = k.keypoints.get(i) {
-                self.prior.add(kp.ux, kp.uy, rho);
-            }
-        }
-        let rho_range = prior_range(&self.scratch_f32)?;
-        self.prior.finish(
-            rho_range,
-            self.config.prior_min_points,
-            self.config.prior_margin,
-        );
-        let mut neighbours = heapless::Vec::new();
-        let max_n = self.reconstructor.max_neighbours();
-        let mut angles = std::mem::take(&mut self.scratch_f32);
-        let mean_rho = 0.5 * (rho_range.0 + rho_range.1);
-        let min_baseline = self.config.min_baseline_ratio / mean_rho.max(1e-9);
-        for nb in k.best_covisibles(4 * max_n) {
-            if neighbours.len() == max_n {
-                break;
-            }
-            let Some(j) = map.keyframe(nb) else { continue };
-            if j.gray.len() != k.gray.len() {
-                continue;
-            }
-            let t_ji = j.t_cw.0 * k.t_cw.0.inverse();
-            if t_ji.translation.vector.norm() < min_baseline {
-                continue;
-            }
-            // The keypoints of the points both observe, found once for the in-plane rotation
-            // and the exposure.
-            self.scratch_shared.clear();
-            for (i, mp) in k.observed() {
-                if self.scratch_shared.len() == self.scratch_shared.capacity() {
-                    break;
-                }
-                let Some(p) = map.point(mp) else { continue };
-                let Some(&(_, jj)) = p.observations.iter().find(|(o, _)| *o == nb) else {
-                    continue;
-                };
-                if let (Some(a), Some(b)) = (k.keypoints.get(i), j.keypoints.get(jj as usize)) {
-                    self.scratch_shared.push((*a, *b));
-                }
-            }
-            let shared = &self.scratch_shared;
-            let delta_theta =
-                median_rotation(shared.iter().map(|(a, b)| (a.angle, b.angle)), &mut angles);
-            let gain = if self.config.photometric_gain {
-                let (w, h) = (self.reconstructor.width, self.reconstructor.height);
-                let matched = shared.iter().map(|(a, b)| ((a.ux, a.uy), (b.ux, b.uy)));
-                photometric_gain(&k.gray, &j.gray, w, h, matched, &mut self.scratch_gain)
-            } else {
-                1.0
-            };
-            let slot = neighbours.len();
-            let staged = !self.reconstructor.is_cached(j.serial);
-            if staged {
-                self.gray_nb[slot].clear();
-                self.gray_nb[slot].extend_from_slice(&j.gray);
-            }
-            let n = Neighbour {
-                id: nb,
-                serial: j.serial,
-                t_ji,
-                delta_theta,
-                gain,
-                staged,
-            };
-            if neighbours.push(n).is_err() {
-                break;
-            }
-        }
-        self.scratch_f32 = angles;
-        if neighbours.len() < self.config.lambda_n {
-            return None;
-        }
-        self.gray_ref.clear();
-        self.gray_ref.extend_from_slice(&k.gray);
-        self.colour_ref.clear();
-        if k.has_color {
-            self.colour_ref.extend_from_slice(&k.colour);
-        }
-        Some((
-            k.t_cw,
-            k.timestamp,
-            k.serial,
-            k.has_color,
-            neighbours,
-            rho_range,
-            anchors,
-        ))
+        self.ws.reconstruct(&self.config, map, kf, &mut out);
     }
 
     /// Runs the inter-keyframe check of every unchecked keyframe whose neighbours are all
@@ -563,7 +477,7 @@ impl SemiDenseMapper {
     /// Re-reads current poses of an entry and its neighbours from the map (loop closure and BA
     /// move keyframes after reconstruction).
     fn refresh_poses(&mut self, map: &Map, e: usize) {
-        let mut scratch = std::mem::take(&mut self.scratch_f32);
+        let mut scratch = std::mem::take(&mut self.ws.scratch_f32);
         let mut ids: heapless::Vec<usize, { MAX_NEIGHBOURS + 1 }> = heapless::Vec::new();
         let _ = ids.push(e);
         for n in &self.entries[e].neighbours {
@@ -590,7 +504,7 @@ impl SemiDenseMapper {
                 self.entries[e].relative_to = rel;
             }
         }
-        self.scratch_f32 = scratch;
+        self.ws.scratch_f32 = scratch;
     }
 
     fn check(&mut self, map: &Mutex<Map>, e: usize) {
@@ -616,7 +530,8 @@ impl SemiDenseMapper {
         for pair in maps.iter_mut().zip(&jobs) {
             let _ = work.push(pair);
         }
-        self.reconstructor
+        self.ws
+            .reconstructor
             .par_for_each(&mut work, 1, |(m, (start, len, s, t_ji))| {
                 let pixels = arena[*start..*start + *len].iter().map(|p| {
                     let mut r = p.raw;
@@ -632,7 +547,8 @@ impl SemiDenseMapper {
         let inter = &self.inter;
         let inter_check = self.config.inter_check;
         // Pixels are independent: checked in the worker pool, a few rows' worth per task.
-        self.reconstructor
+        self.ws
+            .reconstructor
             .par_for_each(&mut self.arena[start..start + len], 2048, |p| {
                 // Checked in today's scale, stored in the reconstruction's (as `raw`).
                 p.rho = if inter_check {

@@ -191,8 +191,8 @@ impl SemiDenseMapper {
     /// keyframe of a discarded map belongs to none). Maps are in different frames until
     /// merged: one cloud must not mix them.
     pub fn cloud_of(&self, map: &Map, map_id: Option<u32>, out: &mut Vec<CloudPoint>) {
-        let k = self.reconstructor.k;
-        let w = self.reconstructor.width;
+        let k = self.ws.reconstructor.k;
+        let w = self.ws.reconstructor.width;
         let mut scratch = Vec::with_capacity(MAX_ANCHORS);
         let in_map =
             |e: &&KeyframeDepth| map_id.is_none_or(|id| map.map_of(e.keyframe) == Some(id));

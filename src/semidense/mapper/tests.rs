@@ -187,3 +187,39 @@ fn a_culled_keyframe_without_anchors_follows_a_correction() {
         moved
     );
 }
+
+#[test]
+fn two_keyframes_at_a_time_give_the_cloud_of_one_at_a_time() {
+    let config = Config::default();
+    let d = densifier(&config);
+    let kfs = d.keyframes().to_vec();
+    let run = |threads: usize| {
+        let sd = SemiDenseConfig {
+            threads,
+            ..config.semidense.clone()
+        };
+        let mut mapper = mapper_for(&sd);
+        mapper.reconstruct_all(d.map(), &kfs);
+        let mut cloud = Vec::new();
+        mapper.cloud(&d.map().lock().unwrap(), &mut cloud);
+        let order: Vec<KeyFrameId> = mapper.entries().iter().map(|e| e.keyframe).collect();
+        let stats = mapper.stats.clone();
+        (cloud, order, stats)
+    };
+    let (one, order_one, stats_one) = run(1);
+    let (two, order_two, stats_two) = run(2);
+    assert_eq!(order_one, kfs, "entries not in keyframe order");
+    assert_eq!(order_two, kfs, "entries not in keyframe order");
+    assert_eq!(stats_one.pixels, stats_two.pixels);
+    assert_eq!(
+        stats_one.keyframes_reconstructed,
+        stats_two.keyframes_reconstructed
+    );
+    assert!(one.len() > 10_000, "{} points", one.len());
+    assert_eq!(one.len(), two.len());
+    let same = one
+        .iter()
+        .zip(&two)
+        .all(|(a, b)| a.position == b.position && a.rgb == b.rgb);
+    assert!(same, "the clouds differ");
+}
