@@ -54,6 +54,17 @@ impl StageTimer {
         self.samples_ms.capacity()
     }
 
+    /// Adds another timer's samples (another worker's), its count and its max. Percentiles
+    /// weigh the kept samples: exact while neither timer has thinned.
+    pub fn absorb(&mut self, other: &StageTimer) {
+        for &ms in &other.samples_ms {
+            self.record_ms(ms as f64);
+        }
+        // `record_ms` counted the kept samples; the other timer may have thinned more.
+        self.total += other.total - other.samples_ms.len();
+        self.max_ms = self.max_ms.max(other.max_ms);
+    }
+
     pub fn count(&self) -> usize {
         self.total
     }
@@ -99,6 +110,24 @@ mod tests {
             (p.p50, p.p90, p.p99, p.max, p.count),
             (50.0, 90.0, 99.0, 100.0, 100)
         );
+    }
+
+    #[test]
+    fn absorbing_another_timer_counts_its_samples_and_max() {
+        let (mut a, mut b) = (
+            StageTimer::with_capacity(100),
+            StageTimer::with_capacity(50),
+        );
+        for i in 1..=50 {
+            a.record_ms(i as f64);
+        }
+        for i in 51..=100 {
+            b.record_ms(i as f64);
+        }
+        a.absorb(&b);
+        let p = a.percentiles();
+        assert_eq!((p.count, p.max), (100, 100.0));
+        assert_eq!(p.p50, 50.0);
     }
 
     #[test]

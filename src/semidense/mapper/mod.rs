@@ -156,15 +156,20 @@ impl SemiDenseStats {
         self.skipped_overload += o.skipped_overload;
         self.skipped_cut += o.skipped_cut;
         self.busy_s += o.busy_s;
-        let (a, b) = (&mut self.pixels, &o.pixels);
-        a.searched += b.searched;
-        a.search_abandoned += b.search_abandoned;
-        a.fused += b.fused;
-        a.intra_kept += b.intra_kept;
-        a.intra_grown += b.intra_grown;
-        a.patch_removed += b.patch_removed;
-        a.inter_checked += b.inter_checked;
-        a.inter_kept += b.inter_kept;
+        self.pixels += &o.pixels;
+    }
+}
+
+impl std::ops::AddAssign<&PixelCounts> for PixelCounts {
+    fn add_assign(&mut self, b: &PixelCounts) {
+        self.searched += b.searched;
+        self.search_abandoned += b.search_abandoned;
+        self.fused += b.fused;
+        self.intra_kept += b.intra_kept;
+        self.intra_grown += b.intra_grown;
+        self.patch_removed += b.patch_removed;
+        self.inter_checked += b.inter_checked;
+        self.inter_kept += b.inter_kept;
     }
 }
 
@@ -340,17 +345,9 @@ impl SemiDenseMapper {
         };
         let room = AtomicUsize::new(self.arena.capacity() - self.arena.len());
         let free_entries = self.entries.capacity() - self.entries.len();
-        let config = &self.config;
         let mut back = Store::with_capacity(free_entries, self.t_depth.capacity());
-        let mut front = Sink {
-            entries: &mut self.entries,
-            arena: &mut self.arena,
-            stats: &mut self.stats,
-            t_depth: &mut self.t_depth,
-            t_intra: &mut self.t_intra,
-            room: &room,
-        };
-        let (ws, second, back_store, room) = (&mut self.ws, &mut second, &mut back, &room);
+        let (second, back_store, room) = (&mut second, &mut back, &room);
+        let (ws, config, mut front) = self.parts(room);
         let joined = std::thread::scope(|s| {
             let spawned = std::thread::Builder::new()
                 .name("semidense-final".into())
@@ -391,12 +388,8 @@ impl SemiDenseMapper {
             self.entries.push(e);
         }
         self.stats.absorb(&back.stats);
-        for &ms in back.t_depth.samples_ms() {
-            self.t_depth.record_ms(ms as f64);
-        }
-        for &ms in back.t_intra.samples_ms() {
-            self.t_intra.record_ms(ms as f64);
-        }
+        self.t_depth.absorb(&back.t_depth);
+        self.t_intra.absorb(&back.t_intra);
     }
 
     /// End of an interrupted run: drops the keyframes still waiting for reconstruction
@@ -449,15 +442,25 @@ impl SemiDenseMapper {
 
     fn reconstruct(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
         let room = AtomicUsize::new(self.arena.capacity() - self.arena.len());
-        let mut out = Sink {
+        let (ws, config, mut out) = self.parts(&room);
+        ws.reconstruct(config, map, kf, &mut out);
+    }
+
+    /// The workspace, the settings and a sink into this mapper's store (`room`: its free
+    /// arena pixels), borrowed at once.
+    fn parts<'a>(
+        &'a mut self,
+        room: &'a AtomicUsize,
+    ) -> (&'a mut Workspace, &'a SemiDenseConfig, Sink<'a>) {
+        let out = Sink {
             entries: &mut self.entries,
             arena: &mut self.arena,
             stats: &mut self.stats,
             t_depth: &mut self.t_depth,
             t_intra: &mut self.t_intra,
-            room: &room,
+            room,
         };
-        self.ws.reconstruct(&self.config, map, kf, &mut out);
+        (&mut self.ws, &self.config, out)
     }
 
     /// Runs the inter-keyframe check of every unchecked keyframe whose neighbours are all

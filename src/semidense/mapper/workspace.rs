@@ -198,13 +198,15 @@ impl Workspace {
         );
         out.t_depth.record(times.depth);
         out.t_intra.record(times.intra);
-        let c = &mut out.stats.pixels;
-        c.searched += times.searched_pixels;
-        c.search_abandoned += times.abandoned;
-        c.fused += times.fused;
-        c.intra_kept += times.intra_kept;
-        c.intra_grown += times.grown;
-        c.patch_removed += times.patch_removed;
+        out.stats.pixels += &PixelCounts {
+            searched: times.searched_pixels,
+            search_abandoned: times.abandoned,
+            fused: times.fused,
+            intra_kept: times.intra_kept,
+            intra_grown: times.grown,
+            patch_removed: times.patch_removed,
+            ..PixelCounts::default()
+        };
         out.stats.keyframes_reconstructed += 1;
     }
 
