@@ -125,8 +125,9 @@ impl StereoPair {
     /// Where reference pixel (x, y) at inverse depth `rho` lands in j (None behind j).
     #[inline]
     pub fn project(&self, x: f64, y: f64, rho: f64) -> Option<(f32, f32)> {
-        let h = self.kr * Vector3::new(x, y, 1.0) + self.kt * rho;
-        (h.z > 1e-9).then(|| ((h.x / h.z) as f32, (h.y / h.z) as f32))
+        let mut out = [(0.0, 0.0)];
+        self.project_offsets(x, y, rho, &[(0, 0)], &mut out)
+            .then_some(out[0])
     }
 
     /// [`project`](Self::project) of the pixels (x + dx, y + dy) for each offset, all at
