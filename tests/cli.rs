@@ -564,6 +564,45 @@ fn interrupt_mid_run_writes_the_outputs_so_far() {
     }
 }
 
+/// Ctrl-C during the end-of-session pass: the pass stops at once and is dropped; the
+/// online cloud is written as semidense.ply and the report says so.
+#[test]
+fn interrupt_during_the_end_of_session_pass_keeps_the_online_cloud() {
+    let d = tempfile::tempdir().unwrap();
+    let (seq, run) = (d.path().join("seq"), d.path().join("run"));
+    common::synth_folder(&seq, 90, 1);
+    let out = std::process::Command::new(common::sdslam_bin())
+        .args([
+            "run",
+            seq.to_str().unwrap(),
+            "--deterministic",
+            "--semidense-final",
+        ])
+        .args(["--no-plots", "--out", run.to_str().unwrap()])
+        .env("SDSLAM_FAULT", "interrupt:semidense_final")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("end-of-session pass is dropped"), "{err}");
+    let r = report(&run);
+    assert!(
+        r["stopped_early"]
+            .as_str()
+            .unwrap()
+            .contains("during the end-of-session"),
+        "{r}"
+    );
+    assert!(r["semidense_final"].is_null(), "{r}");
+    let p = run.join("semidense.ply");
+    let n = sdslam::io::decode_ply(&std::fs::read(&p).unwrap(), &p)
+        .unwrap()
+        .len() as u64;
+    assert!(n > 0);
+    assert_eq!(n, r["semidense_points"].as_u64().unwrap());
+    assert!(!run.join("semidense_online.ply").exists());
+}
+
 /// `calibrate` on rendered chessboard views recovers the camera they were rendered with, and
 /// writes YAML that `run --calib` reads.
 #[test]

@@ -300,6 +300,15 @@ impl Config {
         if sd.prior_cell_px != 0 && !(4..=1024).contains(&sd.prior_cell_px) {
             return bad("semidense.prior_cell_px", "must be 0 (off) or 4..=1024");
         }
+        if sd.final_seed_cell_px != 0 && !(2..=1024).contains(&sd.final_seed_cell_px) {
+            return bad(
+                "semidense.final_seed_cell_px",
+                "must be 0 (off) or 2..=1024",
+            );
+        }
+        if !(sd.final_seed_margin >= 0.0 && sd.final_seed_margin < 1.0) {
+            return bad("semidense.final_seed_margin", "must be in [0, 1)");
+        }
         if !(1..=MAX_NEIGHBOURS).contains(&sd.n_neighbours) {
             return bad(
                 "semidense.n_neighbours",

@@ -1,6 +1,7 @@
 //! Fault injection for tests of the failure paths: `SDSLAM_FAULT=panic:local_mapping` (or
 //! `panic:semidense`) makes that thread panic at its fifth keyframe, so tests can check that a
-//! dying thread is reported, the run stops cleanly and every output is still written. Read once;
+//! dying thread is reported, the run stops cleanly and every output is still written;
+//! `interrupt:semidense_final` sends the CLI a Ctrl-C as its end-of-session pass starts. Read once;
 //! costs one comparison per keyframe otherwise.
 
 use std::sync::OnceLock;

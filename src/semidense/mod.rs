@@ -29,7 +29,7 @@ pub use mapper::{KeyframeDepth, PixelCounts, SemiDenseMapper, SemiDenseStats, ST
 pub use offline::Densifier;
 pub use photometric::{photometric_gain, MIN_GAIN_MATCHES};
 pub use prior::RegionalPrior;
-pub use reconstructor::{KeyframeReconstructor, StageTimes, MAX_NEIGHBOURS};
+pub use reconstructor::{KeyframeReconstructor, Seed, StageTimes, MAX_NEIGHBOURS};
 
 /// One pixel's inverse-depth estimate N(rho, sigma^2); `idx` = y * width + x.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

@@ -17,8 +17,10 @@ pub struct RegionalPrior {
     lo: Vec<f32>,
     hi: Vec<f32>,
     count: Vec<u32>,
-    /// Per cell: the search range after `finish`.
+    /// Per cell: the search range after `finish`, and whether it is narrower than `global`
+    /// (enough points around it).
     ranges: Vec<(f64, f64)>,
+    narrowed: Vec<bool>,
     global: (f64, f64),
 }
 
@@ -39,6 +41,7 @@ impl RegionalPrior {
             hi: vec![0.0; n],
             count: vec![0; n],
             ranges: vec![(0.0, 0.0); n],
+            narrowed: vec![false; n],
             global: (0.0, 0.0),
         }
     }
@@ -86,14 +89,17 @@ impl RegionalPrior {
                     }
                 }
                 let mut r = global;
+                let mut narrowed = false;
                 if n as usize >= min_points.max(1) {
                     let a = (lo as f64 * (1.0 - margin)).max(global.0);
                     let b = (hi as f64 * (1.0 + margin)).min(global.1);
                     if b > a {
                         r = (a, b);
+                        narrowed = true;
                     }
                 }
                 self.ranges[cy * self.cols + cx] = r;
+                self.narrowed[cy * self.cols + cx] = narrowed;
             }
         }
     }
@@ -109,6 +115,20 @@ impl RegionalPrior {
             (y / self.cell).min(self.rows - 1),
         );
         self.ranges[cy * self.cols + cx]
+    }
+
+    /// The search range of pixel (x, y) when its cell had enough points around it.
+    #[inline]
+    pub fn narrowed_range(&self, x: usize, y: usize) -> Option<(f64, f64)> {
+        if !self.enabled() {
+            return None;
+        }
+        let (cx, cy) = (
+            (x / self.cell).min(self.cols - 1),
+            (y / self.cell).min(self.rows - 1),
+        );
+        let i = cy * self.cols + cx;
+        self.narrowed[i].then_some(self.ranges[i])
     }
 }
 
@@ -133,8 +153,10 @@ mod tests {
         );
         let (a, b) = p.range(90, 10);
         assert!((a - 0.2).abs() < 1e-6 && (b - 0.3).abs() < 1e-6, "{a} {b}");
+        assert_eq!(p.narrowed_range(90, 10), Some(p.range(90, 10)));
         // The middle cell (x 40-59) has no points around it: the global interval.
         assert_eq!(p.range(50, 50), (0.1, 2.0));
+        assert_eq!(p.narrowed_range(50, 50), None);
         // Never wider than the global interval.
         p.finish((0.9, 1.0), 5, 0.2);
         assert_eq!(p.range(10, 10), (0.9, 1.0));
@@ -143,5 +165,6 @@ mod tests {
         off.add(5.0, 5.0, 1.0);
         off.finish((0.1, 2.0), 1, 0.2);
         assert_eq!(off.range(5, 5), (0.1, 2.0));
+        assert_eq!(off.narrowed_range(5, 5), None);
     }
 }

@@ -20,6 +20,15 @@ use crate::geometry::Se3;
 /// Most neighbours a keyframe is searched in (the paper uses N = 7).
 pub use crate::config::MAX_NEIGHBOURS;
 
+/// What an earlier depth map of the keyframe tells its search (end of session: the online
+/// map): per-cell inverse-depth ranges where it had estimates (pixels elsewhere are not
+/// searched), and the early-rejection point for the keyframe (`[semidense] final_seed_*`).
+#[derive(Clone, Copy, Debug)]
+pub struct Seed<'a> {
+    pub ranges: &'a RegionalPrior,
+    pub early_reject_after: usize,
+}
+
 /// Time spent in each stage of one keyframe.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StageTimes {
@@ -29,6 +38,10 @@ pub struct StageTimes {
     /// Reference pixels searched, and epipolar samples visited over all neighbours.
     pub searched_pixels: u64,
     pub samples: u64,
+    /// Of the searched pixels, those whose range a [`Seed`] narrowed; pixels with G >
+    /// lambda_G it left unsearched (nothing around them in the earlier map).
+    pub seeded: u64,
+    pub seed_skipped: u64,
     /// Pixels per stage: searches stopped before the last neighbour (no estimate could
     /// result: too few neighbours left, or early rejection), pixels fused (III-C), fused
     /// pixels the intra-keyframe check kept, and pixels it grew (III-D).
@@ -270,6 +283,18 @@ impl KeyframeReconstructor {
         rho_range: (f64, f64),
         prior: Option<&RegionalPrior>,
     ) -> StageTimes {
+        self.reconstruct_seeded(rho_range, prior, None)
+    }
+
+    /// [`reconstruct_with`](Self::reconstruct_with) where `seed` (ranges from an earlier
+    /// depth map of this keyframe) narrows the cells it covers and sets early rejection.
+    pub fn reconstruct_seeded(
+        &mut self,
+        rho_range: (f64, f64),
+        prior: Option<&RegionalPrior>,
+        seed: Option<Seed>,
+    ) -> StageTimes {
+        let seed = seed.filter(|s| s.ranges.enabled());
         let t0 = Instant::now();
         let (w, h) = (self.width, self.height);
         let mut neighbours: heapless::Vec<&GradientImage, MAX_NEIGHBOURS> = heapless::Vec::new();
@@ -284,14 +309,17 @@ impl KeyframeReconstructor {
             params,
             lambda_n: self.lambda_n,
             consensus_window: self.consensus_window,
-            early_reject_after: self.early_reject_after,
+            early_reject_after: seed.map_or(self.early_reject_after, |s| s.early_reject_after),
             reference,
             neighbours: &neighbours[..],
             pairs: &self.pairs,
             rho_range,
             prior: prior.filter(|p| p.enabled()),
+            seed: seed.map(|s| s.ranges),
             pixels: AtomicU64::new(0),
             samples: AtomicU64::new(0),
+            seeded: AtomicU64::new(0),
+            seed_skipped: AtomicU64::new(0),
             abandoned: AtomicU64::new(0),
             fused: AtomicU64::new(0),
         };
@@ -375,6 +403,8 @@ impl KeyframeReconstructor {
             intra: t1.elapsed(),
             searched_pixels: ctx.pixels.load(Ordering::Relaxed),
             samples: ctx.samples.load(Ordering::Relaxed),
+            seeded: ctx.seeded.load(Ordering::Relaxed),
+            seed_skipped: ctx.seed_skipped.load(Ordering::Relaxed),
             abandoned: ctx.abandoned.load(Ordering::Relaxed),
             fused: ctx.fused.load(Ordering::Relaxed),
             intra_kept,
@@ -445,8 +475,11 @@ struct DepthContext<'a> {
     rho_range: (f64, f64),
     /// Per-region ranges (inside `rho_range`), when on.
     prior: Option<&'a RegionalPrior>,
+    seed: Option<&'a RegionalPrior>,
     pixels: AtomicU64,
     samples: AtomicU64,
+    seeded: AtomicU64,
+    seed_skipped: AtomicU64,
     abandoned: AtomicU64,
     fused: AtomicU64,
 }
@@ -493,6 +526,9 @@ impl DepthContext<'_> {
         }
         self.pixels.fetch_add(counts.pixels, Ordering::Relaxed);
         self.samples.fetch_add(counts.samples, Ordering::Relaxed);
+        self.seeded.fetch_add(counts.seeded, Ordering::Relaxed);
+        self.seed_skipped
+            .fetch_add(counts.seed_skipped, Ordering::Relaxed);
         self.abandoned
             .fetch_add(counts.abandoned, Ordering::Relaxed);
         self.fused.fetch_add(counts.fused, Ordering::Relaxed);
@@ -516,12 +552,24 @@ impl DepthContext<'_> {
             if codes[x] & 255 == 0 {
                 continue;
             }
+            // A seed narrows the samples visited, not the segment: its parallax check and
+            // sub-pixel step stay those of the prior range (a few-percent window on a short
+            // baseline is under a pixel of line). Where it has nothing, nothing is searched.
+            let mut window = None;
+            if let Some(seed) = self.seed {
+                window = seed.narrowed_range(x, y);
+                if window.is_none() {
+                    counts.seed_skipped += 1;
+                    continue;
+                }
+                counts.seeded += 1;
+            }
             let p = &self.reference.at(x, y);
             counts.pixels += 1;
             let rho_range = self.prior.map_or(self.rho_range, |p| p.range(x, y));
+            let mut agreed = false;
             let mut n = 0;
             let total = self.pairs.len();
-            let mut window = None;
             for (j, (pair, img)) in self.pairs.iter().zip(self.neighbours).enumerate() {
                 if self.gives_up(j, total, &hyps[..n]) {
                     counts.abandoned += 1;
@@ -539,8 +587,10 @@ impl DepthContext<'_> {
                 ) {
                     hyps[n] = hy;
                     n += 1;
-                    if self.consensus_window && window.is_none() {
-                        window = consensus_window(&hyps[..n]);
+                    if self.consensus_window && !agreed {
+                        if let Some(w) = consensus_window(&hyps[..n]) {
+                            (window, agreed) = (Some(w), true);
+                        }
                     }
                 }
             }
@@ -558,6 +608,8 @@ impl DepthContext<'_> {
 struct RowCounts {
     pixels: u64,
     samples: u64,
+    seeded: u64,
+    seed_skipped: u64,
     abandoned: u64,
     fused: u64,
 }

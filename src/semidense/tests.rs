@@ -310,6 +310,7 @@ fn paper_mode_switches_every_addition_off_and_says_so() {
         "min_baseline_ratio",
         "max_similarity_error",
         "photometric_gain",
+        "final_seed_cell_px",
     ] {
         assert!(
             names.iter().any(|x| x == n),
@@ -333,6 +334,7 @@ fn paper_mode_switches_every_addition_off_and_says_so() {
     assert!(f.max_similarity_error.is_infinite());
     assert!(!f.consensus_window);
     assert_eq!(f.prior_cell_px, 0);
+    assert_eq!(f.final_seed_cell_px, 0);
     // The paper's own parameters are untouched.
     assert_eq!((f.n_neighbours, f.lambda_n, f.sigma_i), (7, 3, 20.0));
     let mode: SemiDenseMode = toml::from_str::<toml::Value>("m = \"paper\"")

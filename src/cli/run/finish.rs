@@ -80,7 +80,19 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
     let run_final = s.args.semidense_final && !interrupted && threads_ok;
     if run_final {
         note!("sdslam: end-of-session semi-dense reconstruction of every keyframe");
-        r.system.reconstruct_semidense_final();
+        if sdslam::runtime::faults::injected("interrupt:semidense_final") {
+            // A Ctrl-C as the pass starts, through the real handler (tests).
+            // SAFETY: raise(3) on this process; the handler only sets an atomic.
+            unsafe { libc::raise(libc::SIGINT) };
+        }
+        let stop = crate::signal::interrupted;
+        let done = r.system.reconstruct_semidense_final_until(&stop).is_some();
+        if !done && crate::signal::interrupted() {
+            note!("sdslam: interrupted; the end-of-session pass is dropped, semidense.ply holds the online cloud");
+            r.report.stopped_early.get_or_insert_with(|| {
+                "interrupted (Ctrl-C) during the end-of-session reconstruction; semidense.ply is the online cloud".into()
+            });
+        }
     }
     let final_s = final_started.elapsed().as_secs_f64();
     r.system.release_working_memory();

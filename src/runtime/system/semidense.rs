@@ -66,6 +66,16 @@ impl System {
     /// images). Returns the new results; `None` when semi-dense mapping is off or the run
     /// is not finished.
     pub fn reconstruct_semidense_final(&mut self) -> Option<&SemiDenseMapper> {
+        self.reconstruct_semidense_final_until(&|| false)
+    }
+
+    /// [`reconstruct_semidense_final`](Self::reconstruct_semidense_final) that stops
+    /// taking keyframes once `stop` says so (Ctrl-C): the incomplete pass is dropped and
+    /// `None` returned; the online results stay as they are.
+    pub fn reconstruct_semidense_final_until(
+        &mut self,
+        stop: &(dyn Fn() -> bool + Sync),
+    ) -> Option<&SemiDenseMapper> {
         if !self.finished || !self.final_semidense.config.enabled {
             return None;
         }
@@ -96,8 +106,12 @@ impl System {
             k.sort_unstable();
             k.into_iter().map(|(_, id)| id).collect()
         };
-        mapper.reconstruct_all(&self.map, &keyframes);
+        // The online depth maps narrow the search (`final_seed_cell_px`).
+        let done = mapper.reconstruct_all(&self.map, &keyframes, self.semidense.mapper(), stop);
         mapper.release_working_memory();
+        if !done {
+            return None;
+        }
         f.mapper = Some(mapper);
         f.mapper.as_deref()
     }

@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use super::{
     median_rotation, photometric_gain, prior_range, DepthPixel, InterChecker, Intrinsics,
-    KeyframeReconstructor, RegionalPrior, MAX_NEIGHBOURS,
+    KeyframeReconstructor, RegionalPrior, Seed, MAX_NEIGHBOURS,
 };
 use crate::config::SemiDenseConfig;
 use crate::geometry::CloudPoint;
@@ -98,6 +98,11 @@ pub struct SemiDenseStats {
 pub struct PixelCounts {
     /// Reference pixels with G > lambda_G searched (III-B).
     pub searched: u64,
+    /// ... whose range an earlier depth map of the keyframe narrowed (end of session:
+    /// `final_seed_cell_px`); pixels with G > lambda_G left unsearched because that map has
+    /// nothing around them (not in `searched`).
+    pub seeded: u64,
+    pub seed_skipped: u64,
     /// ... whose search stopped early (fewer than lambda_N neighbours left, or early
     /// rejection: no compatible pair after `early_reject_after` neighbours).
     pub search_abandoned: u64,
@@ -163,6 +168,8 @@ impl SemiDenseStats {
 impl std::ops::AddAssign<&PixelCounts> for PixelCounts {
     fn add_assign(&mut self, b: &PixelCounts) {
         self.searched += b.searched;
+        self.seeded += b.seeded;
+        self.seed_skipped += b.seed_skipped;
         self.search_abandoned += b.search_abandoned;
         self.fused += b.fused;
         self.intra_kept += b.intra_kept;
@@ -299,26 +306,49 @@ impl SemiDenseMapper {
     /// takes keyframes from the front and the other from the back, so each mostly finds
     /// its neighbours' gradients in its own cache; the results are stored in keyframe
     /// order, whichever worker made them, so the cloud does not depend on the split. The
-    /// checks then split rows over the pool.
-    pub fn reconstruct_all(&mut self, map: &Mutex<Map>, keyframes: &[KeyFrameId]) {
+    /// checks then split rows over the pool. `seed`: the online mapper, whose depth maps
+    /// narrow each keyframe's search (`final_seed_cell_px`). Stops taking keyframes once
+    /// `stop` says so (Ctrl-C) and returns false: the pass is then incomplete.
+    pub fn reconstruct_all(
+        &mut self,
+        map: &Mutex<Map>,
+        keyframes: &[KeyFrameId],
+        seed: Option<&SemiDenseMapper>,
+        stop: &(dyn Fn() -> bool + Sync),
+    ) -> bool {
         for &k in keyframes {
             self.receive(map, k);
         }
         let pool = self.ws.reconstructor.take_pool();
         if pool.is_some() && keyframes.len() >= 2 {
-            self.reconstruct_two_at_a_time(map, keyframes);
+            self.reconstruct_two_at_a_time(map, keyframes, seed, stop);
         } else {
             for &k in keyframes {
-                self.reconstruct(map, k);
+                if stop() {
+                    break;
+                }
+                let room = AtomicUsize::new(self.arena.capacity() - self.arena.len());
+                let (ws, config, mut out) = self.parts(&room);
+                ws.reconstruct(config, map, k, &mut out, seed);
             }
         }
         self.ws.reconstructor.restore_pool(pool);
+        if stop() {
+            return false;
+        }
         self.check_ready(map, true);
+        true
     }
 
     /// [`reconstruct_all`](Self::reconstruct_all)'s two workers (the calling thread takes
     /// the front).
-    fn reconstruct_two_at_a_time(&mut self, map: &Mutex<Map>, keyframes: &[KeyFrameId]) {
+    fn reconstruct_two_at_a_time(
+        &mut self,
+        map: &Mutex<Map>,
+        keyframes: &[KeyFrameId],
+        seed: Option<&SemiDenseMapper>,
+        stop: &(dyn Fn() -> bool + Sync),
+    ) {
         let (k, w, h) = {
             let r = &self.ws.reconstructor;
             (r.k, r.width, r.height)
@@ -333,7 +363,7 @@ impl SemiDenseMapper {
         let take = |front: bool| {
             let mut g = next.lock().unwrap_or_else(|e| e.into_inner());
             let (f, b) = *g;
-            (f < b).then(|| {
+            (f < b && !stop()).then(|| {
                 if front {
                     g.0 += 1;
                     keyframes[f]
@@ -354,11 +384,11 @@ impl SemiDenseMapper {
                 .spawn_scoped(s, move || {
                     let mut out = back_store.sink(room);
                     while let Some(kf) = take(false) {
-                        second.reconstruct(config, map, kf, &mut out);
+                        second.reconstruct(config, map, kf, &mut out, seed);
                     }
                 });
             while let Some(kf) = take(true) {
-                ws.reconstruct(config, map, kf, &mut front);
+                ws.reconstruct(config, map, kf, &mut front, seed);
             }
             spawned.map(|h| h.join().is_ok())
         });
@@ -443,7 +473,7 @@ impl SemiDenseMapper {
     fn reconstruct(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
         let room = AtomicUsize::new(self.arena.capacity() - self.arena.len());
         let (ws, config, mut out) = self.parts(&room);
-        ws.reconstruct(config, map, kf, &mut out);
+        ws.reconstruct(config, map, kf, &mut out, None);
     }
 
     /// The workspace, the settings and a sink into this mapper's store (`room`: its free

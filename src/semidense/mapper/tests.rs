@@ -124,7 +124,7 @@ fn reconstructed() -> (Densifier, SemiDenseMapper, usize) {
     let d = densifier(&config);
     let mut mapper = mapper_for(&config.semidense);
     let kfs = d.keyframes().to_vec();
-    mapper.reconstruct_all(d.map(), &kfs);
+    mapper.reconstruct_all(d.map(), &kfs, None, &|| false);
     (d, mapper, kfs.len() / 2)
 }
 
@@ -199,7 +199,7 @@ fn two_keyframes_at_a_time_give_the_cloud_of_one_at_a_time() {
             ..config.semidense.clone()
         };
         let mut mapper = mapper_for(&sd);
-        mapper.reconstruct_all(d.map(), &kfs);
+        mapper.reconstruct_all(d.map(), &kfs, None, &|| false);
         let mut cloud = Vec::new();
         mapper.cloud(&d.map().lock().unwrap(), &mut cloud);
         let order: Vec<KeyFrameId> = mapper.entries().iter().map(|e| e.keyframe).collect();
@@ -222,4 +222,99 @@ fn two_keyframes_at_a_time_give_the_cloud_of_one_at_a_time() {
         .zip(&two)
         .all(|(a, b)| a.position == b.position && a.rgb == b.rgb);
     assert!(same, "the clouds differ");
+}
+
+/// Share of `cloud`'s points more than 10% off the rendered depth of their keyframe (best
+/// of the 3 x 3 pixels around the projection), and the number of points checked.
+fn outlier_share(cloud: &[CloudPoint]) -> (f64, usize) {
+    let seq = SyntheticSequence::new(SyntheticConfig::default());
+    let cam = seq.config.camera();
+    let (k, w, h) = (cam.intrinsics(), cam.width as usize, cam.height as usize);
+    let gt = seq.ground_truth();
+    let mut f = Frame::new(cam.width, cam.height);
+    let mut depth = vec![0.0f32; w * h];
+    let (mut off, mut n) = (0usize, 0usize);
+    for i in (60..200).step_by(8) {
+        seq.render_with_depth(i, &mut f, &mut depth);
+        let t_cw = gt[i].t_wc.inverse();
+        for p in cloud.iter().filter(|p| p.timestamp == f.timestamp) {
+            let x = t_cw.transform(&p.position.map(|c| c as f64).into());
+            let (u, v) = (k.fx * x.x / x.z + k.cx, k.fy * x.y / x.z + k.cy);
+            let (u, v) = (u.round() as isize, v.round() as isize);
+            if u < 1 || v < 1 || u + 1 >= w as isize || v + 1 >= h as isize {
+                continue;
+            }
+            let best = (-1..=1)
+                .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
+                .map(|(dx, dy)| depth[(v + dy) as usize * w + (u + dx) as usize] as f64)
+                .filter(|&d| d > 0.0)
+                .map(|d| (x.z - d).abs() / d)
+                .fold(f64::INFINITY, f64::min);
+            n += 1;
+            off += (best > 0.1) as usize;
+        }
+    }
+    (off as f64 / n.max(1) as f64, n)
+}
+
+#[test]
+fn a_seed_narrows_the_search_and_a_wrong_seed_moves_no_point() {
+    let config = Config::default();
+    let (d, online, _) = reconstructed();
+    let kfs = d.keyframes().to_vec();
+    let cloud_of = |m: &SemiDenseMapper| {
+        let mut c = Vec::new();
+        m.cloud(&d.map().lock().unwrap(), &mut c);
+        c
+    };
+    let final_pass = |seed: &SemiDenseMapper| {
+        let mut m = mapper_for(&config.semidense);
+        m.reconstruct_all(d.map(), &kfs, Some(seed), &|| false);
+        m
+    };
+    let (plain_out, plain_n) = outlier_share(&cloud_of(&online));
+    let seeded = final_pass(&online);
+    let px = &seeded.stats.pixels;
+    assert!(
+        px.seeded > px.searched / 2,
+        "{} of {} searched pixels seeded",
+        px.seeded,
+        px.searched
+    );
+    let (seeded_out, seeded_n) = outlier_share(&cloud_of(&seeded));
+    eprintln!(
+        "without seed {plain_n} points, {:.3}% off; seeded {seeded_n}, {:.3}% off",
+        plain_out * 100.0,
+        seeded_out * 100.0
+    );
+    // Early rejection after 2 (`final_seed_early_reject_after`) trades 10-20% of the points
+    // for accuracy on the synthetic scenes (docs/PERFORMANCE.md).
+    assert!(
+        seeded_n as f64 > 0.8 * plain_n as f64,
+        "{seeded_n} points seeded, {plain_n} without"
+    );
+    assert!(
+        seeded_out <= plain_out.max(0.002) * 1.5,
+        "outliers {:.2}% seeded, {:.2}% without",
+        seeded_out * 100.0,
+        plain_out * 100.0
+    );
+    // A seed 30% too deep everywhere: its ranges miss the true depths. The pass may lose
+    // points but must not give them the seed's depths.
+    let mut wrong = online;
+    for p in &mut wrong.arena {
+        p.rho /= 1.3;
+    }
+    let misled = final_pass(&wrong);
+    let (misled_out, misled_n) = outlier_share(&cloud_of(&misled));
+    eprintln!(
+        "seed 30% too deep: {misled_n} points, {:.3}% off",
+        misled_out * 100.0
+    );
+    assert!(misled.stats.pixels.seeded > 0);
+    assert!(
+        misled_out < 0.01,
+        "{:.2}% of {misled_n} points off with a wrong seed",
+        misled_out * 100.0
+    );
 }

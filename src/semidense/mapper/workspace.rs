@@ -30,6 +30,7 @@ struct Snapshot {
     neighbours: heapless::Vec<Neighbour, MAX_NEIGHBOURS>,
     rho_range: (f64, f64),
     anchors: heapless::Vec<Anchor, MAX_ANCHORS>,
+    seeded: bool,
 }
 
 /// The buffers one keyframe's reconstruction works in, reserved at construction.
@@ -49,6 +50,8 @@ pub(super) struct Workspace {
     /// The reference keyframe's regional prior (`[semidense] prior_cell_px`), built under
     /// the map lock with the keyframe-wide one.
     prior: RegionalPrior,
+    /// Ranges from the keyframe's online depth map (end of session, `final_seed_cell_px`).
+    seed_ranges: RegionalPrior,
 }
 
 /// Where reconstructed keyframes go: the mapper's own store, or a second worker's until it
@@ -84,6 +87,7 @@ impl Workspace {
             scratch_shared: Vec::with_capacity(max_features.max(64)),
             scratch_pixels: Vec::with_capacity(width * height),
             prior: RegionalPrior::new(width, height, config.prior_cell_px),
+            seed_ranges: RegionalPrior::new(width, height, config.final_seed_cell_px),
         }
     }
 
@@ -103,9 +107,10 @@ impl Workspace {
         map: &Mutex<Map>,
         kf: KeyFrameId,
         out: &mut Sink,
+        seed: Option<&SemiDenseMapper>,
     ) {
         let t0 = Instant::now();
-        let Some(snap) = self.snapshot(config, map, kf) else {
+        let Some(snap) = self.snapshot(config, map, kf, seed) else {
             out.stats.keyframes_skipped += 1;
             let alive = map
                 .lock()
@@ -147,7 +152,11 @@ impl Workspace {
                 let gray = n.staged.then(|| &self.gray_nb[k][..]);
                 r.add_neighbour(n.serial, gray, &n.t_ji, n.delta_theta, n.gain);
             }
-            r.reconstruct_with(snap.rho_range, Some(&self.prior))
+            let seed = snap.seeded.then_some(Seed {
+                ranges: &self.seed_ranges,
+                early_reject_after: config.final_seed_early_reject_after,
+            });
+            r.reconstruct_seeded(snap.rho_range, Some(&self.prior), seed)
         };
         self.reconstructor.export(&mut self.scratch_pixels);
         let start = out.arena.len();
@@ -200,6 +209,8 @@ impl Workspace {
         out.t_intra.record(times.intra);
         out.stats.pixels += &PixelCounts {
             searched: times.searched_pixels,
+            seeded: times.seeded,
+            seed_skipped: times.seed_skipped,
             search_abandoned: times.abandoned,
             fused: times.fused,
             intra_kept: times.intra_kept,
@@ -217,6 +228,7 @@ impl Workspace {
         config: &SemiDenseConfig,
         map: &Mutex<Map>,
         kf: KeyFrameId,
+        seed: Option<&SemiDenseMapper>,
     ) -> Option<Snapshot> {
         let map = map.lock().unwrap_or_else(|e| e.into_inner());
         let k = map.keyframe(kf)?;
@@ -310,6 +322,8 @@ impl Workspace {
         if neighbours.len() < config.lambda_n {
             return None;
         }
+        let seeded =
+            seed.is_some_and(|s| self.seed_from(config, s, &map, kf, rho_range, neighbours.len()));
         self.gray_ref.clear();
         self.gray_ref.extend_from_slice(&k.gray);
         self.colour_ref.clear();
@@ -324,6 +338,56 @@ impl Workspace {
             neighbours,
             rho_range,
             anchors,
+            seeded,
         })
+    }
+
+    /// Fills the seed ranges from `online`'s depth map of keyframe `kf` (checked pixels, in
+    /// today's depth scale). False when it has none, too few to narrow anything, or was
+    /// searched in fewer neighbours than the `n_neighbours` of this pass (its gaps may be
+    /// what the missing neighbours would fill: the keyframe is then searched in full).
+    fn seed_from(
+        &mut self,
+        config: &SemiDenseConfig,
+        online: &SemiDenseMapper,
+        map: &Map,
+        kf: KeyFrameId,
+        rho_range: (f64, f64),
+        n_neighbours: usize,
+    ) -> bool {
+        if !self.seed_ranges.enabled() {
+            return false;
+        }
+        let Some(e) = online
+            .entries
+            .iter()
+            .find(|e| e.keyframe == kf && e.checked)
+        else {
+            return false;
+        };
+        if e.neighbours.len() < n_neighbours {
+            return false;
+        }
+        let Some(k) = map.keyframe(kf) else {
+            return false;
+        };
+        // depth now = depth then x scale (loop corrections and BA since).
+        let scale =
+            super::output::anchor_scale(map, e, &k.t_cw, &mut self.scratch_f32).unwrap_or(e.scale);
+        self.seed_ranges.clear();
+        let w = self.reconstructor.width;
+        let mut n = 0;
+        for p in online.pixels(e).filter(|p| p.rho > 0.0) {
+            let i = p.raw.idx as usize;
+            self.seed_ranges
+                .add((i % w) as f32, (i / w) as f32, p.rho / scale);
+            n += 1;
+        }
+        self.seed_ranges.finish(
+            rho_range,
+            config.final_seed_min_points,
+            config.final_seed_margin,
+        );
+        n >= config.final_seed_min_points.max(1)
     }
 }
