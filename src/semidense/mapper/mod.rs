@@ -282,7 +282,7 @@ impl SemiDenseMapper {
         self.pending.push_back(kf);
         while self.pending.len() > self.config.keyframe_delay {
             if let Some(k) = self.pending.pop_front() {
-                self.reconstruct(map, k);
+                self.reconstruct(map, k, None);
                 self.check_ready(map, false);
             }
         }
@@ -292,7 +292,7 @@ impl SemiDenseMapper {
     /// has (end of the run).
     pub fn flush(&mut self, map: &Mutex<Map>) {
         while let Some(k) = self.pending.pop_front() {
-            self.reconstruct(map, k);
+            self.reconstruct(map, k, None);
             self.check_ready(map, false);
         }
         self.check_ready(map, true);
@@ -327,9 +327,7 @@ impl SemiDenseMapper {
                 if stop() {
                     break;
                 }
-                let room = AtomicUsize::new(self.arena.capacity() - self.arena.len());
-                let (ws, config, mut out) = self.parts(&room);
-                ws.reconstruct(config, map, k, &mut out, seed);
+                self.reconstruct(map, k, seed);
             }
         }
         self.ws.reconstructor.restore_pool(pool);
@@ -470,10 +468,12 @@ impl SemiDenseMapper {
         self.arena[e.start..e.start + e.len].iter()
     }
 
-    fn reconstruct(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
+    /// Reconstructs `kf` into this mapper's store (`seed`: see
+    /// [`reconstruct_all`](Self::reconstruct_all); `None` online).
+    fn reconstruct(&mut self, map: &Mutex<Map>, kf: KeyFrameId, seed: Option<&SemiDenseMapper>) {
         let room = AtomicUsize::new(self.arena.capacity() - self.arena.len());
         let (ws, config, mut out) = self.parts(&room);
-        ws.reconstruct(config, map, kf, &mut out, None);
+        ws.reconstruct(config, map, kf, &mut out, seed);
     }
 
     /// The workspace, the settings and a sink into this mapper's store (`room`: its free
