@@ -2,10 +2,14 @@
 //! major axis, keep the samples passing the three pixel conditions (section III-B) and
 //! return the one with the smallest similarity error (eq. 3). Everything a sample needs is
 //! in one word per pixel ([`GradientImage::packed`](super::GradientImage::packed)); with
-//! AVX-512 sixteen samples at a time, with AVX2 eight, else one (portable fallback).
+//! AVX-512 sixteen samples at a time, with AVX2 eight, else four ([`portable`]: SSE or
+//! NEON, one source for both).
 
 use super::epipolar::SearchParams;
 use super::gradients::{unpack, MODULUS_SCALE};
+
+mod portable;
+use portable::scan_lanes;
 
 /// A rasterised segment: sample k is at major coordinate `major0 + k * major_step` and minor
 /// coordinate `(minor0 + k * minor_step) / 65536` (16.16 fixed point).
@@ -63,7 +67,9 @@ pub(super) fn scan(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32])
 }
 
 /// Conditions 1-3 on a code: strong gradient, orientation within lambda_theta of the rotated
-/// reference, within lambda_L of the line (either direction).
+/// reference, within lambda_L of the line (either direction). The definition the vector
+/// scans are tested against.
+#[cfg(test)]
 #[inline]
 fn passes(code: u8, probe: &Probe, params: &SearchParams) -> bool {
     let o = code >> 1;
@@ -84,7 +90,9 @@ fn circular_test(a: u8, t: u8, modulus: i32) -> (i32, i32) {
 
 /// The similarity error (eq. 3) up to the factor 1 / sigma_I^2, from the intensity and
 /// the modulus in fixed point (exact integers in f32), so the scan needs two products and a
-/// sum per sample; [`finish`] applies the factor to the winner.
+/// sum per sample; [`finish`] applies the factor to the winner. The vector scans compute it
+/// lane by lane with the same operations in the same order.
+#[cfg(test)]
 #[inline]
 fn ranking_error(v: u32, pi: f32, pg_fixed: f32, k_g: f32) -> f32 {
     let ri = pi - ((v >> 8) & 255) as f32;
@@ -147,48 +155,8 @@ pub(super) fn scan_scalar(walk: &Walk, probe: &Probe, params: &SearchParams, t: 
     finish(best, walk, probe, params, t)
 }
 
-/// Lanes of [`scan_lanes`]: the width of SSE and NEON vectors of f32.
-const LANES: usize = 4;
-
-/// The portable scan (every CPU without AVX2: the 128-bit profile, ARM): the samples in
-/// blocks of four, each lane keeping its own running minimum, so no step depends on the one
-/// before and the compiler vectorises the error, the tests and the selection (the scalar
-/// loop's single minimum chains every sample to the previous). The overall first minimum is
-/// the lowest index among the lanes' minima of the lowest error: the same winner as
-/// [`scan_scalar`], bit for bit.
-pub(super) fn scan_lanes(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u32]) -> Best {
-    let (pg_fixed, k_g) = ranking_constants(probe, params);
-    let mut be = [f32::INFINITY; LANES];
-    let mut bk = [0usize; LANES];
-    let blocks = walk.n / LANES;
-    for b in 0..blocks {
-        let k0 = b * LANES;
-        let v: [u32; LANES] = std::array::from_fn(|l| t[nearest(k0 + l, walk)]);
-        for l in 0..LANES {
-            let e = ranking_error(v[l], probe.intensity, pg_fixed, k_g);
-            let take = passes((v[l] & 255) as u8, probe, params) & (e < be[l]);
-            be[l] = if take { e } else { be[l] };
-            bk[l] = if take { k0 + l } else { bk[l] };
-        }
-    }
-    let mut best = NONE;
-    for l in 0..LANES {
-        if be[l] < best.e || (be[l] == best.e && bk[l] < best.k) {
-            best.e = be[l];
-            best.k = bk[l];
-        }
-    }
-    for k in blocks * LANES..walk.n {
-        let v = t[nearest(k, walk)];
-        let e = ranking_error(v, probe.intensity, pg_fixed, k_g);
-        let take = passes((v & 255) as u8, probe, params) & (e < best.e);
-        best.e = if take { e } else { best.e };
-        best.k = if take { k } else { best.k };
-    }
-    finish(best, walk, probe, params, t)
-}
-
 /// Index of the pixel nearest to sample k.
+#[cfg(test)]
 #[inline]
 fn nearest(k: usize, walk: &Walk) -> usize {
     let major = (walk.major0 + walk.major_step * k as i32) as usize;
