@@ -1,8 +1,10 @@
-//! Which vector width the hand-written kernels may use. Each kernel checks the CPU at run time
-//! (AVX2, AVX-512 on x86); the width can be capped for the whole process, so the "128-bit
-//! profile" (the x86-64-v2 baseline the crate is compiled for: SSE4.2 lanes, the width an ARM
-//! robot's NEON has) is measured on this machine with the same binary (`--simd 128`, or
-//! `SDSLAM_SIMD=128` for the benches).
+//! Which vector width the kernels may use. The 128-bit kernels are written once on `wide`'s
+//! vectors, which compile to SSE on x86-64 (the x86-64-v2 baseline the crate is built for)
+//! and to NEON on aarch64: what an ARM robot runs is the code built and tested here. Wider
+//! hand-written kernels (AVX2, AVX-512) check the CPU at run time and are kept where they are
+//! measurably faster, each tested equal to its 128-bit twin. The width can be capped for the
+//! whole process, so the "128-bit profile" is measured on this machine with the same binary
+//! (`--simd 128`, or `SDSLAM_SIMD=128` for the benches).
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -74,13 +76,6 @@ pub fn avx() -> bool {
 #[inline]
 pub fn avx512f() -> bool {
     max_width() >= Width::W512 && std::arch::is_x86_feature_detected!("avx512f")
-}
-
-/// SSSE3 (128-bit; part of the x86-64-v2 baseline, checked for builds below it).
-#[cfg(target_arch = "x86_64")]
-#[inline]
-pub fn ssse3() -> bool {
-    std::arch::is_x86_feature_detected!("ssse3")
 }
 
 #[cfg(test)]

@@ -1,5 +1,7 @@
 //! The ORB scale pyramid, preallocated for one image size and rebuilt in place every frame.
 
+use wide::{i16x8, u8x16};
+
 use super::{gaussian_blur_7x7, PaddedImage};
 
 /// Pyramid geometry.
@@ -33,25 +35,32 @@ pub struct Pyramid {
     row_tmp: Vec<u8>,
 }
 
-/// 8 horizontally resampled outputs: source bytes `base + shuffle[2j]` and `+ shuffle[2j+1]`
-/// blended by `weights[2j]` and `weights[2j+1]` (7-bit fixed point, summing to 128).
+/// 8 horizontally resampled outputs: output j blends source bytes `base + a[2j]` and
+/// `base + b[2j]` by `wa[j]` and `wb[j]` (7-bit fixed point, summing to 128). The odd bytes
+/// of `a` and `b` are 0x80, which a byte shuffle turns into zero: shuffling the 16 source
+/// bytes by `a` gives the first bytes already widened to 16 bits (SSSE3 and NEON alike).
 #[derive(Clone, Copy, Debug)]
 struct XGroup {
     base: u32,
-    shuffle: [u8; 16],
-    weights: [i8; 16],
+    a: [u8; 16],
+    b: [u8; 16],
+    wa: [i16; 8],
+    wb: [i16; 8],
 }
 
-/// Groups of 8 outputs for one horizontal map. Both weights stay below 128 (they are signed
-/// bytes): a whole-pixel sample is written as the pixel twice at half weight.
+/// Groups of 8 outputs for one horizontal map. A whole-pixel sample is written as the pixel
+/// twice at half weight (the same sums as when the weights were signed bytes).
 fn x_groups(xmap: &[(u32, u16)]) -> Vec<XGroup> {
     xmap.chunks(8)
         .map(|c| {
             let base = c[0].0;
             let mut g = XGroup {
                 base,
-                shuffle: [0; 16],
-                weights: [0; 16],
+                // Outputs past the map's end read byte 0 at weight 0.
+                a: std::array::from_fn(|i| if i % 2 == 0 { 0 } else { 0x80 }),
+                b: std::array::from_fn(|i| if i % 2 == 0 { 0 } else { 0x80 }),
+                wa: [0; 8],
+                wb: [0; 8],
             };
             for (j, &(x0, w8)) in c.iter().enumerate() {
                 let w7 = (w8 as u32).div_ceil(2);
@@ -59,12 +68,9 @@ fn x_groups(xmap: &[(u32, u16)]) -> Vec<XGroup> {
                 let (a, b, wa, wb) = match w7 {
                     0 => (o, o, 64, 64),
                     128.. => (o + 1, o + 1, 64, 64),
-                    w => (o, o + 1, (128 - w) as i8, w as i8),
+                    w => (o, o + 1, 128 - w as i16, w as i16),
                 };
-                g.shuffle[2 * j] = a;
-                g.shuffle[2 * j + 1] = b;
-                g.weights[2 * j] = wa;
-                g.weights[2 * j + 1] = wb;
+                (g.a[2 * j], g.b[2 * j], g.wa[j], g.wb[j]) = (a, b, wa, wb);
             }
             g
         })
@@ -165,8 +171,8 @@ impl Pyramid {
 }
 
 /// Bilinear downsampling with precomputed maps: blend the two source rows (contiguous, SIMD),
-/// then resample the blended row horizontally, 8 outputs per byte shuffle where the CPU has
-/// one (SSSE3) and the same arithmetic in scalar code elsewhere (no NEON path yet).
+/// then resample the blended row horizontally, 8 outputs per byte shuffle (SSSE3 or NEON,
+/// one source for both).
 #[inline(always)]
 fn resample(
     src: &PaddedImage,
@@ -197,43 +203,41 @@ fn resample(
 /// bytes of slack past `n`, which are overwritten).
 #[inline(always)]
 fn horizontal(tmp: &[u8], groups: &[XGroup], out: &mut [u8], n: usize) {
-    #[cfg(target_arch = "x86_64")]
-    if crate::simd::ssse3() && out.len() >= groups.len() * 8 {
-        // SAFETY: SSSE3 is present; every group reads 16 bytes at base <= tmp.len() - 16 and
-        // writes 8 bytes at 8 g < out.len() - 7 (checked above).
-        unsafe { horizontal_ssse3(tmp, groups, out) };
-        return;
+    if out.len() >= groups.len() * 8 && tmp.len() >= 16 {
+        horizontal_lanes(tmp, groups, out);
+    } else {
+        horizontal_scalar(tmp, groups, out, n)
     }
-    horizontal_scalar(tmp, groups, out, n)
 }
 
 fn horizontal_scalar(tmp: &[u8], groups: &[XGroup], out: &mut [u8], n: usize) {
     for (g, grp) in groups.iter().enumerate() {
         let src = &tmp[grp.base as usize..grp.base as usize + 16];
         for j in 0..8.min(n - 8 * g) {
-            let a = src[grp.shuffle[2 * j] as usize] as i32 * grp.weights[2 * j] as i32;
-            let b = src[grp.shuffle[2 * j + 1] as usize] as i32 * grp.weights[2 * j + 1] as i32;
+            let a = src[grp.a[2 * j] as usize] as i32 * grp.wa[j] as i32;
+            let b = src[grp.b[2 * j] as usize] as i32 * grp.wb[j] as i32;
             out[8 * g + j] = ((a + b + 64) >> 7) as u8;
         }
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "ssse3")]
-unsafe fn horizontal_ssse3(tmp: &[u8], groups: &[XGroup], out: &mut [u8]) {
-    use std::arch::x86_64::*;
-    assert!(out.len() >= groups.len() * 8);
-    let round = _mm_set1_epi16(64);
+/// [`horizontal_scalar`] on `wide`'s 128-bit vectors (SSE on x86-64, NEON on aarch64): two
+/// byte shuffles gather each output's two source bytes, widened to 16 bits, and the blend
+/// runs in 16-bit lanes (at most 255 x 128 + 64). Every group writes 8 bytes (`out` has the
+/// slack).
+fn horizontal_lanes(tmp: &[u8], groups: &[XGroup], out: &mut [u8]) {
+    let round = i16x8::splat(64);
     for (g, grp) in groups.iter().enumerate() {
-        let src = &tmp[grp.base as usize..grp.base as usize + 16];
-        let v = _mm_loadu_si128(src.as_ptr() as *const __m128i);
-        let sh = _mm_loadu_si128(grp.shuffle.as_ptr() as *const __m128i);
-        let w = _mm_loadu_si128(grp.weights.as_ptr() as *const __m128i);
-        let pairs = _mm_shuffle_epi8(v, sh);
-        let sum = _mm_add_epi16(_mm_maddubs_epi16(pairs, w), round);
-        let px = _mm_packus_epi16(_mm_srli_epi16(sum, 7), _mm_setzero_si128());
-        let dst = &mut out[8 * g..8 * g + 8];
-        _mm_storel_epi64(dst.as_mut_ptr() as *mut __m128i, px);
+        let base = grp.base as usize;
+        let Ok(src) = <[u8; 16]>::try_from(&tmp[base..base + 16]) else {
+            continue;
+        };
+        let src = u8x16::new(src);
+        let wide = |idx: &[u8; 16]| -> i16x8 { bytemuck::cast(src.shuffle(u8x16::new(*idx))) };
+        let (a, b) = (wide(&grp.a), wide(&grp.b));
+        let sum = a * i16x8::new(grp.wa) + b * i16x8::new(grp.wb) + round;
+        let px = u8x16::narrow_i16x8(sum >> 7u32, i16x8::ZERO).to_array();
+        out[8 * g..8 * g + 8].copy_from_slice(&px[..8]);
     }
 }
 
