@@ -334,6 +334,7 @@ unsafe fn reduce_avx2(e: std::arch::x86_64::__m256, k: std::arch::x86_64::__m256
 }
 
 /// Most rows sixteen samples may span for the contiguous-load path (beyond it, one gather).
+#[cfg(target_arch = "x86_64")]
 const LOAD_ROWS_MAX: i32 = 8;
 
 #[cfg(target_arch = "x86_64")]
@@ -453,6 +454,7 @@ unsafe fn scan_avx512(walk: &Walk, probe: &Probe, params: &SearchParams, t: &[u3
 /// Folds `load` over rows `r_lo..=r_hi`. Shallow lines cross one or two rows per sixteen
 /// samples, unpredictably: both are loaded without a loop (a load whose mask is empty reads
 /// nothing), so the loop's exit no longer mispredicts.
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn rows_fold<V>(r_lo: i32, r_hi: i32, init: V, mut load: impl FnMut(V, i32) -> V) -> V {
     if r_hi - r_lo <= 1 {
@@ -500,6 +502,7 @@ mod tests {
             *v = (rnd() & 0xffff_ffff) as u32;
         }
         let params = SearchParams::from_config(&crate::config::SemiDenseConfig::default());
+        #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
         let mut simd_checked = 0;
         for trial in 0..2000 {
             // Walks along rows of the image, or of its transpose (stride h).
