@@ -33,7 +33,7 @@ pub fn harris_response(img: &PaddedImage, x: isize, y: isize) -> f32 {
         let p = &img.data[at..at + ROW_BYTES];
         // Eight bytes in one load (the slice's length is known, so the fallback is dead).
         let lanes = |o: usize| {
-            let bytes = <[u8; 8]>::try_from(&p[o..o + 8]).map_or(0, u64::from_le_bytes);
+            let bytes = <[u8; 8]>::try_from(&p[o..o + 8]).map_or(0, u64::from_ne_bytes);
             i16x8::from_u8x16_low(bytemuck::cast([bytes, 0u64]))
         };
         let (a, b, c) = (lanes(0), lanes(1), lanes(2));

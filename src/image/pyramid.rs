@@ -35,10 +35,11 @@ pub struct Pyramid {
     row_tmp: Vec<u8>,
 }
 
-/// 8 horizontally resampled outputs: output j blends source bytes `base + a[2j]` and
-/// `base + b[2j]` by `wa[j]` and `wb[j]` (7-bit fixed point, summing to 128). The odd bytes
-/// of `a` and `b` are 0x80, which a byte shuffle turns into zero: shuffling the 16 source
-/// bytes by `a` gives the first bytes already widened to 16 bits (SSSE3 and NEON alike).
+/// 8 horizontally resampled outputs: output j blends source bytes `base + a[2j + LOW]` and
+/// `base + b[2j + LOW]` by `wa[j]` and `wb[j]` (7-bit fixed point, summing to 128). The
+/// other byte of each pair is 0x80, which a byte shuffle turns into zero: shuffling the 16
+/// source bytes by `a` gives the first bytes already widened to 16 bits (SSSE3 and NEON
+/// alike).
 #[derive(Clone, Copy, Debug)]
 struct XGroup {
     base: u32,
@@ -47,6 +48,9 @@ struct XGroup {
     wa: [i16; 8],
     wb: [i16; 8],
 }
+
+/// The byte of a 16-bit lane that holds its low half.
+const LOW: usize = if cfg!(target_endian = "little") { 0 } else { 1 };
 
 /// Groups of 8 outputs for one horizontal map. A whole-pixel sample is written as the pixel
 /// twice at half weight (the same sums as when the weights were signed bytes).
@@ -57,8 +61,8 @@ fn x_groups(xmap: &[(u32, u16)]) -> Vec<XGroup> {
             let mut g = XGroup {
                 base,
                 // Outputs past the map's end read byte 0 at weight 0.
-                a: std::array::from_fn(|i| if i % 2 == 0 { 0 } else { 0x80 }),
-                b: std::array::from_fn(|i| if i % 2 == 0 { 0 } else { 0x80 }),
+                a: std::array::from_fn(|i| if i % 2 == LOW { 0 } else { 0x80 }),
+                b: std::array::from_fn(|i| if i % 2 == LOW { 0 } else { 0x80 }),
                 wa: [0; 8],
                 wb: [0; 8],
             };
@@ -70,7 +74,8 @@ fn x_groups(xmap: &[(u32, u16)]) -> Vec<XGroup> {
                     128.. => (o + 1, o + 1, 64, 64),
                     w => (o, o + 1, 128 - w as i16, w as i16),
                 };
-                (g.a[2 * j], g.b[2 * j], g.wa[j], g.wb[j]) = (a, b, wa, wb);
+                (g.a[2 * j + LOW], g.b[2 * j + LOW]) = (a, b);
+                (g.wa[j], g.wb[j]) = (wa, wb);
             }
             g
         })
@@ -214,8 +219,8 @@ fn horizontal_scalar(tmp: &[u8], groups: &[XGroup], out: &mut [u8], n: usize) {
     for (g, grp) in groups.iter().enumerate() {
         let src = &tmp[grp.base as usize..grp.base as usize + 16];
         for j in 0..8.min(n - 8 * g) {
-            let a = src[grp.a[2 * j] as usize] as i32 * grp.wa[j] as i32;
-            let b = src[grp.b[2 * j] as usize] as i32 * grp.wb[j] as i32;
+            let a = src[grp.a[2 * j + LOW] as usize] as i32 * grp.wa[j] as i32;
+            let b = src[grp.b[2 * j + LOW] as usize] as i32 * grp.wb[j] as i32;
             out[8 * g + j] = ((a + b + 64) >> 7) as u8;
         }
     }
