@@ -45,7 +45,7 @@ pub use atlas::AtlasSummary;
 pub use reserved::ReservedMemory;
 
 use backfill::{Backfill, BACKFILL_PER_FRAME};
-use mapping_thread::{spawn_mapper, MapperSetup, Mapping};
+use mapping_thread::{spawn_mapper, MapperSetup, Mapping, REPLAY_MAPPING_WAIT};
 use relocalisation::RelocCandidates;
 use semidense::FinalSemiDense;
 
@@ -376,7 +376,8 @@ impl System {
     /// frame, as in the deterministic mode. Off the tracking thread (for the frame deadline)
     /// one attempt is in flight at a time and the frames meanwhile are not attempted; replayed
     /// back to back, a highway clip then initialised 27 frames late and its map was lost at
-    /// once (kitti01_51: 2-17 of 51 frames posed, against 42 replayed in real time).
+    /// once (kitti01_51: 2-17 of 51 frames posed, against 42 replayed in real time). Each
+    /// frame also waits for local mapping to catch up (`Mapping::wait_until_idle`).
     pub fn set_replay(&mut self, on: bool) {
         self.replay = on;
     }
@@ -423,6 +424,9 @@ impl System {
         timestamp: f64,
         index: u64,
     ) -> FrameResult {
+        if self.replay {
+            self.mapping.wait_until_idle(REPLAY_MAPPING_WAIT); // before `busy`: mapping waits for it
+        }
         let t0 = Instant::now();
         let gate = self.gate.clone();
         let _busy = gate.busy();
