@@ -42,8 +42,15 @@ def umeyama(src, dst):
     return c, r, t
 
 def main():
+    if len(sys.argv) < 2:
+        sys.exit(__doc__)
     out = sys.argv[1]
-    gt = read_tum(sys.argv[2] if len(sys.argv) > 2 else f"{out}/groundtruth.txt")
+    gt_path = sys.argv[2] if len(sys.argv) > 2 else f"{out}/groundtruth.txt"
+    for p in (gt_path, f"{out}/report.json", f"{out}/trajectory.txt", f"{out}/keyframes.txt"):
+        if not os.path.isfile(p):
+            # A source without ground truth (e.g. a EuRoC folder), or a run still going.
+            sys.exit(f"robustness.py: {p} not found")
+    gt = read_tum(gt_path)
     rep = json.load(open(f"{out}/report.json"))
     res = evaluate(gt, read_tum(f"{out}/trajectory.txt"), read_tum(f"{out}/keyframes.txt"), rep)
     # The atlas: every map in its own frame (trajectory.txt is the primary map's).
