@@ -290,3 +290,66 @@ fn a_young_map_lost_in_unmapped_space_is_replaced_by_a_new_map_at_once() {
     );
     assert_eq!(system.stats.tracked_frames, traj.len());
 }
+
+/// Two black frames in the middle of the built-in orbit while the camera keeps moving (a
+/// cable glitch, a hand over the lens): the frame after them is tracked again at once from
+/// the last tracked pose carried at its velocity (`[tracking] recovery_frames`), in the same
+/// map, at the right pose; place recognition is not needed. With recovery off, relocalisation
+/// does the same job (slower and needing many matches to one keyframe).
+#[test]
+fn a_short_loss_is_tracked_again_from_the_last_pose() {
+    let run = |recovery_frames: usize| {
+        let seq = SyntheticSequence::new(SyntheticConfig::default());
+        let c = &seq.config;
+        let mut config = Config::default();
+        config.semidense.enabled = false;
+        config.tracking.recovery_frames = recovery_frames;
+        let frames = 160;
+        let mut system = System::new(&c.calibration(), &config, frames, false);
+        let mut f = Frame::new(c.width, c.height);
+        let mut states = Vec::new();
+        for i in 0..frames {
+            seq.render_frame(i, &mut f);
+            if (120..122).contains(&i) {
+                f.gray.fill(0);
+                f.rgb.fill(0);
+            }
+            states.push(
+                system
+                    .process(&f.gray, Some(&f.rgb), f.timestamp, i as u64)
+                    .state,
+            );
+        }
+        (system, seq, states)
+    };
+    let (system, seq, states) = run(10);
+    assert_eq!(states[121], TrackingState::Lost);
+    assert_eq!(
+        states[122],
+        TrackingState::Ok,
+        "not tracked right after the loss"
+    );
+    assert!(system.tracker.recoveries >= 1);
+    assert_eq!(system.tracker.relocalisations, 0);
+    assert_eq!(system.atlas().maps.len(), 1, "a new map was started");
+    let traj = system.trajectory();
+    let after = traj
+        .iter()
+        .filter(|p| p.timestamp >= seq.ground_truth()[122].timestamp)
+        .count();
+    assert_eq!(after, 38, "frames after the loss without a pose");
+    let r = ate(&seq.ground_truth(), &traj, 1e-6, true).expect("aligned");
+    let gt = seq.ground_truth();
+    let extent = (gt[0].t_wc.position() - gt[159].t_wc.position()).norm();
+    eprintln!("ATE {:.4} m over {extent:.2} m", r.rmse_m);
+    assert!(
+        r.rmse_m < 0.01 * extent,
+        "ATE {} m over {extent} m",
+        r.rmse_m
+    );
+    let (system, _, states) = run(0);
+    assert_eq!(system.tracker.recoveries, 0);
+    let back = (122..160).find(|&i| states[i] == TrackingState::Ok);
+    eprintln!("without recovery, tracked again at frame {back:?}");
+    assert!(system.tracker.relocalisations >= 1 || back.is_none());
+}

@@ -97,6 +97,10 @@ def evaluate(gt, traj, kfs, rep):
         res["frame_ate_pct_path"] = round(100 * float(np.sqrt((e ** 2).mean())) / path, 3)
         res["worst_ok_frame_pct_path"] = round(100 * float(e.max()) / path, 3)
         res["ok_frames_off_by_5pct"] = int((e > 0.05 * path).sum())
+        off = [int(k) for (_, k), ek in zip(p, e) if ek > 0.05 * path]
+        if off:
+            # Which frames (ground-truth indices; the first 40), to look them up in a -vv log.
+            res["ok_frames_off"] = off[:40]
     for k in ["map_resets", "lost_episodes", "relocalisations", "loops_closed", "keyframes"]:
         if k in rep:
             res[k] = rep[k]

@@ -153,6 +153,10 @@ pub const MAX_MAP_POINTS: usize = 50_000_000;
 pub const MAX_SEMIDENSE_POINTS: usize = 2_000_000_000;
 /// Largest count of iterations, rounds, neighbours or matches a stage accepts.
 pub const MAX_ITERATIONS: usize = 100_000;
+
+/// Upper bound of `[tracking] recovery_frames` (10 s at 30 fps: the motion model carried
+/// further is a guess).
+pub const MAX_RECOVERY_FRAMES: usize = 300;
 /// Worker threads for per-pixel work (more only oversubscribe the cores).
 pub const MAX_THREADS: usize = 64;
 /// Most neighbours a semi-dense keyframe is searched against (fixed-size buffers).
@@ -474,6 +478,12 @@ impl Config {
             return bad(
                 "tracking.relocalisation_budget_ms",
                 "must be a time in milliseconds >= 0 (0: no bound)",
+            );
+        }
+        if t.recovery_frames > MAX_RECOVERY_FRAMES {
+            return bad(
+                "tracking.recovery_frames",
+                &format!("must be in 0..={MAX_RECOVERY_FRAMES} (0: off)"),
             );
         }
         if !(-1.0..=1.0).contains(&t.min_view_cos) {

@@ -41,6 +41,10 @@ pub struct TrackingConfig {
     /// still trying to relocalise in every map), merged later when place recognition joins
     /// it to an older one. Off: stay lost until relocalisation succeeds.
     pub new_map_when_lost: bool,
+    /// Lost within this many frames of the last tracked frame, a frame is first tracked as
+    /// usual from that frame's pose carried at its velocity, before relocalisation (ours, not
+    /// ORB-SLAM's; see `tracking::recovery`). 0: relocalisation only.
+    pub recovery_frames: usize,
     /// Scale collapse (see `tracking::collapse`): over `collapse_keyframes` keyframes the
     /// median scene depth fell below `collapse_depth_shrink` of its value while the camera
     /// travelled less than `collapse_path_ratio` of the depth lost and turned less than
@@ -77,6 +81,7 @@ impl Default for TrackingConfig {
             young_map_keyframes: 5,
             young_map_patience_frames: 30,
             new_map_when_lost: true,
+            recovery_frames: 10,
             collapse_path_ratio: 0.1,
             collapse_depth_shrink: 0.25,
             collapse_max_turn_deg: 15.0,

@@ -98,6 +98,10 @@ fn every_stage_is_configurable_and_checked() {
             "local_mapping.redundancy",
         ),
         ("[tracking]\nmin_inlier = 3", "min_inlier"),
+        (
+            "[tracking]\nrecovery_frames = 100000",
+            "tracking.recovery_frames",
+        ),
     ] {
         let e = Config::parse(bad, Path::new("c.toml"))
             .unwrap_err()

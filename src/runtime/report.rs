@@ -74,6 +74,9 @@ pub struct Report {
     /// Each loop: kind (`place` or `revisit`), the two keyframes' timestamps, matches, fused.
     pub loop_closures: Vec<crate::loop_closing::LoopRecord>,
     pub relocalisations: usize,
+    /// Lost frames tracked again from the last tracked pose within `[tracking]
+    /// recovery_frames`, before relocalisation was asked.
+    pub recoveries: usize,
     /// Lost frames whose relocalisation stopped at `[tracking] relocalisation_budget_ms`
     /// (real-time use; the next lost frame went on with the other candidates).
     pub relocalisation_budget_cuts: usize,

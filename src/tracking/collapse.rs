@@ -97,6 +97,14 @@ impl CollapseMonitor {
             return false;
         };
         let (path, turn) = it.fold((0.0, 0.0), |(p, t), &(b, r, _)| (p + b, t + r));
+        tracing::trace!(
+            frame = f.index,
+            inliers = self.depths.len(),
+            depth_ratio = median / start,
+            path_per_depth_lost = path / (start - median),
+            turn_deg = turn.to_degrees(),
+            "collapse monitor"
+        );
         median < self.depth_shrink * start
             && path < self.path_ratio * (start - median)
             && turn < self.max_turn_rad

@@ -173,7 +173,18 @@ impl LocalMap {
                 }
             }
         }
+        let matched = f.points.iter().filter(|p| p.is_some()).count();
         let n = t.optimize_pose(map, f);
+        tracing::trace!(
+            frame = f.index,
+            features = f.points.len(),
+            local_keyframes = self.keyframes.len(),
+            local_points = self.points.len(),
+            projected = self.projected.len(),
+            matched,
+            inliers = n,
+            "local map tracked"
+        );
         for (_, mp) in f.inlier_points() {
             if let Some(p) = map.point_mut(mp) {
                 p.found += 1;

@@ -9,6 +9,7 @@ pub mod frame;
 pub mod initializer;
 mod local_map;
 pub mod quality;
+mod recovery;
 
 use nalgebra::{Vector2, Vector3};
 
@@ -66,6 +67,9 @@ pub struct Tracker {
     pub lost_episodes: usize,
     /// Successful relocalisations.
     pub relocalisations: usize,
+    /// Lost frames tracked again from the last tracked pose (see [`recovery`]).
+    pub recoveries: usize,
+    last_tracked: Option<recovery::LastTracked>,
     /// Lost frames whose relocalisation stopped at its time budget.
     pub relocalisation_budget_cuts: usize,
     /// Candidates the last relocalisation tried.
@@ -152,6 +156,7 @@ impl Tracker {
         self.reference_kf = None;
         self.reference_pose = None;
         self.velocity = None;
+        self.last_tracked = None;
     }
 
     /// Frame `frame_index` became keyframe `kf`: the new reference.
@@ -196,6 +201,8 @@ impl Tracker {
             last_keyframe_frame: 0,
             lost_episodes: 0,
             relocalisations: 0,
+            recoveries: 0,
+            last_tracked: None,
             relocalisation_budget_cuts: 0,
             reloc_tried: 0,
             t_prediction: crate::timing::StageTimer::with_capacity(4096),
@@ -449,6 +456,11 @@ impl Tracker {
                 self.degraded = None;
                 self.state = TrackingState::Ok;
                 self.velocity = None;
+                self.last_tracked = Some(recovery::LastTracked {
+                    t_cw: f.t_cw,
+                    index: f.index,
+                    velocity: None,
+                });
                 self.relocalisations += 1;
                 tracing::info!(frame = f.index, inliers = n, "relocalised");
                 return self.state;
@@ -549,6 +561,11 @@ impl Tracker {
             // After a jump the velocity it implies would mislead the next prediction.
             self.velocity = (degraded != Some(DegradedReason::Jump))
                 .then(|| f.t_cw.0 * self.last.t_cw.0.inverse());
+            self.last_tracked = Some(recovery::LastTracked {
+                t_cw: f.t_cw,
+                index: f.index,
+                velocity: self.velocity,
+            });
             self.state = if degraded.is_some() {
                 tracing::debug!(
                     frame = f.index,

@@ -297,6 +297,7 @@ fn fill_tracking_report(report: &mut Report, system: &System, frame_timer: &Stag
     report.centre_sigma_pct_of_depth = system.stats.centre_sigma_pct.percentiles();
     report.lost_episodes = system.tracker.lost_episodes;
     report.relocalisations = system.tracker.relocalisations;
+    report.recoveries = system.tracker.recoveries;
     report.relocalisation_budget_cuts = system.tracker.relocalisation_budget_cuts;
     report.loops_closed = system.stats.loops_closed;
     report.loops_closed_by_revisit = system.stats.loops_closed_by_revisit;

@@ -14,14 +14,21 @@ pub struct AtlasSummary {
 }
 
 impl System {
-    /// A lost frame: relocalise against every map; failing that, once the active map is
-    /// established (or was discarded), try to initialise a new map on this frame.
+    /// A lost frame: shortly after the loss, track it from the last tracked pose; then
+    /// relocalise against every map; failing that, once the active map is established (or
+    /// was discarded), try to initialise a new map on this frame.
     pub(super) fn relocalise_or_start_map(
         &mut self,
         map: &mut Map,
         gray: &[u8],
         rgb: Option<&[u8]>,
     ) -> TrackingState {
+        // Shortly after the loss: tracked as usual from the last tracked pose first.
+        let st = self.tracker.track_after_loss(map, &mut self.frame);
+        if st != TrackingState::Lost {
+            self.forget_initialisation();
+            return st;
+        }
         let st = self.relocalise(map);
         if st == TrackingState::Ok {
             if let Some(m) = self.tracker.reference_kf().and_then(|r| map.map_of(r)) {
