@@ -67,7 +67,7 @@ pub struct Tracker {
     pub lost_episodes: usize,
     /// Successful relocalisations.
     pub relocalisations: usize,
-    /// Lost frames tracked again from the last tracked pose (see [`recovery`]).
+    /// Lost frames tracked again from the last tracked pose (see `tracking::recovery`).
     pub recoveries: usize,
     last_tracked: Option<recovery::LastTracked>,
     /// Lost frames whose relocalisation stopped at its time budget.

@@ -8,11 +8,9 @@
 //! keyframe if it finds too few matches, then the local map. The pose is accepted on the
 //! same bars as any tracked frame (`min_inliers`, then the quality checks).
 
-use super::{Tracker, TrackingState};
+use super::{TrackedFrame, Tracker, TrackingState};
 use crate::geometry::{CameraFromWorld, Se3};
 use crate::map::Map;
-
-use super::TrackedFrame;
 
 /// The last frame tracked (`Ok` or `Degraded`): where a frame shortly after a loss starts.
 #[derive(Clone, Copy, Debug)]
