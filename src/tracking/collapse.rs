@@ -110,3 +110,128 @@ impl CollapseMonitor {
             && turn < self.max_turn_rad
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::WorldFromCamera;
+    use crate::map::MapConfig;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    /// A camera at `pos` (world), turned by `yaw` (radians) about its y axis, seeing
+    /// `depths.len()` points straight ahead at those depths (as its inliers).
+    fn keyframe_at(
+        map: &mut Map,
+        f: &mut TrackedFrame,
+        pos: Vector3<f64>,
+        yaw: f64,
+        depths: &[f64],
+    ) {
+        let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw);
+        let t_wc = WorldFromCamera::from_parts(pos, q);
+        f.t_cw = t_wc.inverse();
+        f.points.clear();
+        f.outlier.clear();
+        let kf = map.insert_keyframe(|_| {}).expect("room for a keyframe");
+        for (i, &z) in depths.iter().enumerate() {
+            // Spread the points a little across the view; depth along the optical axis.
+            let x = 0.01 * z * (i as f64 - depths.len() as f64 / 2.0);
+            let p = map
+                .insert_point(t_wc.transform(&Vector3::new(x, 0.0, z)), kf)
+                .expect("room for a point");
+            f.points.push(Some(p));
+            f.outlier.push(false);
+        }
+        f.index += 1;
+    }
+
+    fn setup() -> (CollapseMonitor, Map, TrackedFrame) {
+        let cfg = TrackingConfig::default();
+        let map = Map::new(MapConfig {
+            max_keyframes: 64,
+            max_map_points: 4096,
+            max_features: 64,
+            ..MapConfig::default()
+        });
+        let mut monitor = CollapseMonitor::new(&cfg, 64);
+        monitor.start(CameraFromWorld::identity());
+        (monitor, map, TrackedFrame::new(64, 640, 480))
+    }
+
+    /// Keyframes every `step` along z with the scene depth multiplied by `shrink` per keyframe
+    /// and `yaw` turned per keyframe: the first keyframe the monitor flags, if any.
+    fn first_alarm(step: f64, shrink: f64, yaw: f64, keyframes: usize) -> Option<usize> {
+        let (mut monitor, mut map, mut f) = setup();
+        let mut depth = 10.0;
+        (1..=keyframes).find(|&k| {
+            depth *= shrink;
+            let depths: Vec<f64> = (0..40).map(|i| depth * (1.0 + 0.01 * i as f64)).collect();
+            keyframe_at(
+                &mut map,
+                &mut f,
+                Vector3::new(0.0, 0.0, step * k as f64),
+                yaw * k as f64,
+                &depths,
+            );
+            monitor.keyframe(&map, &f)
+        })
+    }
+
+    #[test]
+    fn depth_collapsing_while_the_camera_stands_still_is_flagged() {
+        // Depth x0.6 per keyframe: below 0.25 of the start after 5 keyframes (0.6^5 = 0.08).
+        assert_eq!(first_alarm(0.001, 0.6, 0.0, 12), Some(6));
+    }
+
+    #[test]
+    fn a_steady_scene_depth_is_not_flagged() {
+        assert_eq!(first_alarm(0.0, 1.0, 0.0, 20), None);
+        // Slowly shrinking (x0.9 per keyframe: 0.59 over 5) stays above 0.25.
+        assert_eq!(first_alarm(0.0, 0.9, 0.0, 20), None);
+    }
+
+    #[test]
+    fn walking_up_to_a_wall_is_not_flagged() {
+        // The depth falls as fast as in the collapse, but the camera travels 1 per keyframe:
+        // 5 over the window, against the 5.5 of depth lost (the bar is 0.1 of it).
+        assert_eq!(first_alarm(1.0, 0.6, 0.0, 12), None);
+    }
+
+    #[test]
+    fn turning_towards_something_nearer_is_not_flagged() {
+        // 5 deg per keyframe: 25 deg over the window, past collapse_max_turn_deg (15).
+        assert_eq!(first_alarm(0.001, 0.6, 5f64.to_radians(), 12), None);
+        // 2 deg per keyframe (10 over the window) is no excuse.
+        assert!(first_alarm(0.001, 0.6, 2f64.to_radians(), 12).is_some());
+    }
+
+    #[test]
+    fn a_new_map_starts_a_new_window() {
+        let (mut monitor, mut map, mut f) = setup();
+        let mut depth = 10.0;
+        for k in 1..=4 {
+            depth *= 0.6;
+            keyframe_at(
+                &mut map,
+                &mut f,
+                Vector3::new(0.0, 0.0, 0.001 * k as f64),
+                0.0,
+                &[depth; 20],
+            );
+            assert!(!monitor.keyframe(&map, &f));
+        }
+        // A new map: the 4 keyframes before no longer count.
+        monitor.start(f.t_cw);
+        for k in 5..=8 {
+            depth *= 0.6;
+            keyframe_at(
+                &mut map,
+                &mut f,
+                Vector3::new(0.0, 0.0, 0.001 * k as f64),
+                0.0,
+                &[depth; 20],
+            );
+            assert!(!monitor.keyframe(&map, &f), "keyframe {k}");
+        }
+    }
+}
