@@ -209,29 +209,21 @@ mod tests {
     fn a_new_map_starts_a_new_window() {
         let (mut monitor, mut map, mut f) = setup();
         let mut depth = 10.0;
+        // Keyframe k of the shrinking scene: whether the monitor flags it.
+        let mut keyframe = |monitor: &mut CollapseMonitor, k: usize| {
+            depth *= 0.6;
+            let pos = Vector3::new(0.0, 0.0, 0.001 * k as f64);
+            keyframe_at(&mut map, &mut f, pos, 0.0, &[depth; 20]);
+            monitor.keyframe(&map, &f)
+        };
         for k in 1..=4 {
-            depth *= 0.6;
-            keyframe_at(
-                &mut map,
-                &mut f,
-                Vector3::new(0.0, 0.0, 0.001 * k as f64),
-                0.0,
-                &[depth; 20],
-            );
-            assert!(!monitor.keyframe(&map, &f));
+            assert!(!keyframe(&mut monitor, k));
         }
-        // A new map: the 4 keyframes before no longer count.
-        monitor.start(f.t_cw);
+        // A new map: the 4 keyframes before no longer count (without this, keyframe 6 is
+        // flagged).
+        monitor.start(CameraFromWorld::identity());
         for k in 5..=8 {
-            depth *= 0.6;
-            keyframe_at(
-                &mut map,
-                &mut f,
-                Vector3::new(0.0, 0.0, 0.001 * k as f64),
-                0.0,
-                &[depth; 20],
-            );
-            assert!(!monitor.keyframe(&map, &f), "keyframe {k}");
+            assert!(!keyframe(&mut monitor, k), "keyframe {k}");
         }
     }
 }
