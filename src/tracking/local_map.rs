@@ -173,7 +173,9 @@ impl LocalMap {
                 }
             }
         }
-        let matched = f.points.iter().filter(|p| p.is_some()).count();
+        // Counted only for the trace line (a pass over the keypoints every frame otherwise).
+        let matched = tracing::enabled!(tracing::Level::TRACE)
+            .then(|| f.points.iter().filter(|p| p.is_some()).count());
         let n = t.optimize_pose(map, f);
         tracing::trace!(
             frame = f.index,
@@ -181,7 +183,7 @@ impl LocalMap {
             local_keyframes = self.keyframes.len(),
             local_points = self.points.len(),
             projected = self.projected.len(),
-            matched,
+            matched = matched.unwrap_or(0),
             inliers = n,
             "local map tracked"
         );
