@@ -438,6 +438,10 @@ impl Config {
         let counts = [
             ("tracking.min_inliers", t.min_inliers),
             ("tracking.max_local_keyframes", t.max_local_keyframes),
+            (
+                "tracking.min_inliers_after_relocalisation",
+                t.min_inliers_after_relocalisation,
+            ),
             ("initialisation.ransac_iterations", i.ransac_iterations),
             ("initialisation.min_triangulated", i.min_triangulated),
             ("relocalisation.min_inliers", r.min_inliers),

@@ -23,6 +23,13 @@ pub struct TrackingConfig {
     pub max_local_keyframes: usize,
     /// Viewing angle limit for local-map points: cos(60 deg).
     pub min_view_cos: f64,
+    /// ORB-SLAM's bars after a relocalisation: it succeeds with this many inliers (once the
+    /// local map is tracked), and for `relocalisation_settle_frames` after it tracking needs
+    /// as many and makes no keyframe (while the map has more keyframes than that). A
+    /// relocalised pose rests on few matches and no motion model; a wrong one is lost again
+    /// instead of being mapped and reported `Ok`.
+    pub min_inliers_after_relocalisation: usize,
+    pub relocalisation_settle_frames: u64,
     /// Keyframes the place database proposes to relocalise against (best bag-of-words
     /// scores; ORB-SLAM takes every keyframe above a score, at most about this many matter).
     pub relocalisation_candidates: usize,
@@ -76,6 +83,8 @@ impl Default for TrackingConfig {
             min_frames_between_keyframes: 0,
             max_local_keyframes: 80,
             min_view_cos: 0.5,
+            min_inliers_after_relocalisation: 50,
+            relocalisation_settle_frames: 20,
             relocalisation_candidates: 10,
             relocalisation_budget_ms: 10.0,
             young_map_keyframes: 5,

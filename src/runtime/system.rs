@@ -38,6 +38,7 @@ mod map_files;
 mod mapping_thread;
 mod relocalisation;
 mod reserved;
+mod rollback;
 mod semidense;
 mod trajectory;
 
@@ -474,19 +475,8 @@ impl System {
                 let tk = Instant::now();
                 new_keyframe = self.insert_keyframe(map, gray, rgb, t0);
                 self.stats.keyframe_insertion.record(tk.elapsed());
-                if new_keyframe && self.collapse.keyframe(map, &self.frame) {
-                    let c = &self.tracker.config;
-                    let reason = format!(
-                        "frame {}: over {} keyframes the scene depth fell below {} of its value while the camera moved less than {} of the depth lost and turned less than {} deg (scale collapse)",
-                        self.frame.index,
-                        self.collapse.window(),
-                        c.collapse_depth_shrink,
-                        c.collapse_path_ratio,
-                        c.collapse_max_turn_deg
-                    );
-                    tracing::warn!(%reason, "map diverging: discarded, initialising again");
-                    self.stats.divergences.push(reason);
-                    self.discard_active_map(map);
+                if new_keyframe {
+                    self.watch_for_collapse(map);
                 }
             }
             if st == TrackingState::Lost && self.active_map_is_young(map) && !self.localize_only {

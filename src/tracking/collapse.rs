@@ -15,6 +15,37 @@ use super::TrackedFrame;
 /// Keyframes a collapse is judged over (at most; `[tracking] collapse_keyframes`).
 const MAX_WINDOW: usize = 32;
 
+/// What the monitor measured over its window when it flagged a collapse (for the report).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CollapseEvidence {
+    /// Frame of the first keyframe of the window (and its timestamp) and of the flagged one.
+    pub from_frame: u64,
+    pub from_timestamp: f64,
+    pub frame: u64,
+    /// Median inlier depth now over the window's first.
+    pub depth_ratio: f64,
+    /// Distance travelled over the depth lost.
+    pub path_per_depth_lost: f64,
+    pub turn_deg: f64,
+    /// Inliers the median depth was taken over.
+    pub inliers: usize,
+}
+
+impl std::fmt::Display for CollapseEvidence {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "frames {}-{}: median depth x{:.2}, travelled {:.3} of the depth lost, turned {:.1} deg ({} inliers)",
+            self.from_frame,
+            self.frame,
+            self.depth_ratio,
+            self.path_per_depth_lost,
+            self.turn_deg,
+            self.inliers
+        )
+    }
+}
+
 /// Watches the keyframes of one map.
 pub struct CollapseMonitor {
     path_ratio: f64,
@@ -23,8 +54,8 @@ pub struct CollapseMonitor {
     window: usize,
     last: Option<CameraFromWorld>,
     /// The last `window + 1` keyframes: (baseline from the one before, rotation from it,
-    /// median scene depth).
-    recent: heapless::Deque<(f64, f64, f64), MAX_WINDOW>,
+    /// median scene depth, frame index and timestamp).
+    recent: heapless::Deque<(f64, f64, f64, u64, f64), MAX_WINDOW>,
     depths: Vec<f64>,
 }
 
@@ -57,14 +88,12 @@ impl CollapseMonitor {
         self.window
     }
 
-    /// A keyframe was made of `f`: true when, over the last `collapse_keyframes` keyframes,
-    /// the median scene depth fell below `collapse_depth_shrink` of its value while the camera
-    /// travelled less than `collapse_path_ratio` of the depth lost and turned less than
-    /// `collapse_max_turn_deg`.
-    pub fn keyframe(&mut self, map: &Map, f: &TrackedFrame) -> bool {
-        let Some(last) = self.last.replace(f.t_cw) else {
-            return false;
-        };
+    /// A keyframe was made of `f`: the evidence when, over the last `collapse_keyframes`
+    /// keyframes, the median scene depth fell below `collapse_depth_shrink` of its value while
+    /// the camera travelled less than `collapse_path_ratio` of the depth lost and turned less
+    /// than `collapse_max_turn_deg`.
+    pub fn keyframe(&mut self, map: &Map, f: &TrackedFrame) -> Option<CollapseEvidence> {
+        let last = self.last.replace(f.t_cw)?;
         self.depths.clear();
         for (_, p) in f.inlier_points() {
             if let Some(mp) = map.point(p) {
@@ -75,7 +104,7 @@ impl CollapseMonitor {
             }
         }
         if self.depths.is_empty() {
-            return false;
+            return None;
         }
         let mid = self.depths.len() / 2;
         let median = *self
@@ -87,27 +116,30 @@ impl CollapseMonitor {
         if self.recent.len() > self.window {
             self.recent.pop_front();
         }
-        let _ = self.recent.push_back((baseline, turned, median));
+        let _ = self
+            .recent
+            .push_back((baseline, turned, median, f.index, f.timestamp));
         if self.recent.len() <= self.window {
-            return false;
+            return None;
         }
         // The first entry's depth is the start; the others' motions lead from it to now.
         let mut it = self.recent.iter();
-        let Some(&(_, _, start)) = it.next() else {
-            return false;
+        let &(_, _, start, from_frame, from_timestamp) = it.next()?;
+        let (path, turn) = it.fold((0.0, 0.0), |(p, t), &(b, r, ..)| (p + b, t + r));
+        let evidence = CollapseEvidence {
+            from_frame,
+            from_timestamp,
+            frame: f.index,
+            depth_ratio: median / start,
+            path_per_depth_lost: path / (start - median),
+            turn_deg: turn.to_degrees(),
+            inliers: self.depths.len(),
         };
-        let (path, turn) = it.fold((0.0, 0.0), |(p, t), &(b, r, _)| (p + b, t + r));
-        tracing::trace!(
-            frame = f.index,
-            inliers = self.depths.len(),
-            depth_ratio = median / start,
-            path_per_depth_lost = path / (start - median),
-            turn_deg = turn.to_degrees(),
-            "collapse monitor"
-        );
-        median < self.depth_shrink * start
+        tracing::trace!(%evidence, "collapse monitor");
+        (median < self.depth_shrink * start
             && path < self.path_ratio * (start - median)
-            && turn < self.max_turn_rad
+            && turn < self.max_turn_rad)
+            .then_some(evidence)
     }
 }
 
@@ -173,7 +205,7 @@ mod tests {
                 yaw * k as f64,
                 &depths,
             );
-            monitor.keyframe(&map, &f)
+            monitor.keyframe(&map, &f).is_some()
         })
     }
 
@@ -214,7 +246,7 @@ mod tests {
             depth *= 0.6;
             let pos = Vector3::new(0.0, 0.0, 0.001 * k as f64);
             keyframe_at(&mut map, &mut f, pos, 0.0, &[depth; 20]);
-            monitor.keyframe(&map, &f)
+            monitor.keyframe(&map, &f).is_some()
         };
         for k in 1..=4 {
             assert!(!keyframe(&mut monitor, k));

@@ -10,10 +10,11 @@ pub mod initializer;
 mod local_map;
 pub mod quality;
 mod recovery;
+mod relocalisation;
 
 use nalgebra::{Vector2, Vector3};
 
-pub use collapse::CollapseMonitor;
+pub use collapse::{CollapseEvidence, CollapseMonitor};
 pub use frame::{KeptImages, TrackedFrame};
 pub use initializer::{
     solve as solve_initialisation, InitAttempt, InitProblem, Initializer, Prepared,
@@ -70,6 +71,8 @@ pub struct Tracker {
     /// Lost frames tracked again from the last tracked pose (see `tracking::recovery`).
     pub recoveries: usize,
     last_tracked: Option<recovery::LastTracked>,
+    /// Frame of the last relocalisation in the current map (see `relocalisation`).
+    last_relocalisation: Option<u64>,
     /// Lost frames whose relocalisation stopped at its time budget.
     pub relocalisation_budget_cuts: usize,
     /// Candidates the last relocalisation tried.
@@ -157,6 +160,7 @@ impl Tracker {
         self.reference_pose = None;
         self.velocity = None;
         self.last_tracked = None;
+        self.last_relocalisation = None;
     }
 
     /// Frame `frame_index` became keyframe `kf`: the new reference.
@@ -203,6 +207,7 @@ impl Tracker {
             relocalisations: 0,
             recoveries: 0,
             last_tracked: None,
+            last_relocalisation: None,
             relocalisation_budget_cuts: 0,
             reloc_tried: 0,
             t_prediction: crate::timing::StageTimer::with_capacity(4096),
@@ -363,116 +368,6 @@ impl Tracker {
         }
     }
 
-    /// Relocalisation (tracking lost): for each candidate keyframe (from the place-recognition
-    /// database, best first) match its map points to `f` by descriptor (ratio 0.75, rotation
-    /// consistency), solve EPnP-RANSAC on >= 15 matches, optimise the pose on the inliers and,
-    /// with >= 10 left, track the local map from there; success when the local map gives
-    /// `min_inliers`. Returns the state (Ok on success; Lost otherwise).
-    /// With a `budget`, candidates after the first are tried only while the time spent is
-    /// below it ([`relocalisation_candidates_tried`](Self::relocalisation_candidates_tried)
-    /// says how many were).
-    pub fn relocalise(
-        &mut self,
-        map: &mut Map,
-        f: &mut TrackedFrame,
-        candidates: &[KeyFrameId],
-        budget: Option<std::time::Duration>,
-    ) -> TrackingState {
-        let started = std::time::Instant::now();
-        let state = self.relocalise_with(map, f, candidates, started, budget);
-        self.t_relocalisation.record(started.elapsed());
-        state
-    }
-
-    /// Candidates the last [`relocalise`](Self::relocalise) tried (all of them unless its
-    /// budget ran out first).
-    pub fn relocalisation_candidates_tried(&self) -> usize {
-        self.reloc_tried
-    }
-
-    fn relocalise_with(
-        &mut self,
-        map: &mut Map,
-        f: &mut TrackedFrame,
-        candidates: &[KeyFrameId],
-        started: std::time::Instant,
-        budget: Option<std::time::Duration>,
-    ) -> TrackingState {
-        let k = self.camera.k();
-        let cfg = self.relocalisation.clone();
-        self.reloc_tried = 0;
-        for &c in candidates {
-            if self.reloc_tried > 0 && budget.is_some_and(|b| started.elapsed() >= b) {
-                self.relocalisation_budget_cuts += 1;
-                break;
-            }
-            self.reloc_tried += 1;
-            f.reset_matches();
-            let n = self.match_keyframe(map, c, f, 0.75);
-            if n < 15 {
-                tracing::trace!(frame = f.index, candidate = ?c, matches = n, observed = map.keyframe(c).map_or(0, |k| k.observed().count()), "relocalisation: too few matches");
-                continue;
-            }
-            let (mut pw, mut px, mut s2, mut which) =
-                (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-            for (j, p) in f.points.iter().enumerate() {
-                let Some(mp) = p.and_then(|p| map.point(p)) else {
-                    continue;
-                };
-                let kp = &f.features.keypoints[j];
-                pw.push(mp.position);
-                px.push(Vector2::new(kp.ux as f64, kp.uy as f64));
-                let s = self.scales[kp.octave as usize];
-                s2.push(s * s);
-                which.push(j);
-            }
-            let Some(sol) = crate::geometry::pnp::pnp_ransac(&pw, &px, &s2, &k, &cfg) else {
-                tracing::trace!(frame = f.index, candidate = ?c, matches = n, "relocalisation: no PnP solution");
-                continue;
-            };
-            for (m, &j) in which.iter().enumerate() {
-                if !sol.inliers[m] {
-                    f.points[j] = None;
-                }
-            }
-            f.t_cw = sol.t_cw;
-            let refined = self.optimize_pose(map, f);
-            if refined < 10 {
-                tracing::trace!(frame = f.index, candidate = ?c, matches = n, refined, "relocalisation: too few inliers");
-                continue;
-            }
-            self.reference_kf = Some(c);
-            let mut local = std::mem::take(&mut self.local);
-            let n = local.track(self, map, f);
-            self.local = local;
-            tracing::trace!(frame = f.index, candidate = ?c, refined, local = n, "relocalisation: local map tracked");
-            if n >= self.config.min_inliers {
-                // A relocalisation the checks doubt is not taken: the next candidate is tried.
-                let (q, degraded) = self.judge_pose(f, None);
-                if degraded.is_some() {
-                    continue;
-                }
-                self.quality = Some(q);
-                self.degraded = None;
-                self.state = TrackingState::Ok;
-                self.velocity = None;
-                self.last_tracked = Some(recovery::LastTracked {
-                    t_cw: f.t_cw,
-                    index: f.index,
-                    velocity: None,
-                });
-                self.relocalisations += 1;
-                tracing::info!(frame = f.index, inliers = n, "relocalised");
-                return self.state;
-            }
-        }
-        f.reset_matches();
-        self.state = TrackingState::Lost;
-        self.quality = None;
-        self.degraded = None;
-        self.state
-    }
-
     /// Matches the map points observed by keyframe `kf` to `f`'s features by descriptor
     /// (best below TH_LOW and `ratio` x the second best, one map point per feature, rotation
     /// consistency). Returns how many features got a map point.
@@ -542,7 +437,7 @@ impl Tracker {
             self.local = local;
             self.t_local_map.record(t1.elapsed());
         }
-        let ok = n >= self.config.min_inliers;
+        let ok = n >= self.inliers_needed(f.index);
         tracing::trace!(
             frame = f.index,
             inliers = n,
@@ -617,6 +512,11 @@ impl Tracker {
                     .is_some_and(|p| p.observations.len() >= min_obs)
             })
             .count();
+        if self.settling(f.index)
+            && map.n_keyframes_of(r.map_id) > self.config.relocalisation_settle_frames as usize
+        {
+            return false;
+        }
         let tracked = f.n_inliers();
         let since = f.index.saturating_sub(self.last_keyframe_frame);
         let c1 = since >= self.config.max_frames_between_keyframes
@@ -642,55 +542,4 @@ fn rotation_filter(
         }
     }
     rot.for_each_rejected(|j| m[j as usize] = None);
-}
-
-#[cfg(test)]
-mod relocalisation_budget_tests {
-    use super::*;
-    use crate::map::MapConfig;
-
-    /// A tracker, a lost frame and `n` candidate keyframes that cannot match it.
-    fn setup(n: usize) -> (Tracker, Map, TrackedFrame, Vec<KeyFrameId>) {
-        let camera = PinholeRadtan::pinhole(500.0, 500.0, 320.0, 240.0, 640, 480);
-        let scales: Vec<f64> = (0..8).map(|l| 1.2f64.powi(l)).collect();
-        let tracker = Tracker::new(camera, scales, 100);
-        let mut map = Map::new(MapConfig {
-            max_keyframes: 16,
-            max_map_points: 16,
-            max_features: 100,
-            ..MapConfig::default()
-        });
-        let candidates = (0..n)
-            .filter_map(|_| map.insert_keyframe(|_| {}).ok())
-            .collect();
-        (tracker, map, TrackedFrame::new(100, 640, 480), candidates)
-    }
-
-    #[test]
-    fn without_a_budget_every_candidate_is_tried() {
-        let (mut t, mut map, mut f, c) = setup(5);
-        assert_eq!(c.len(), 5);
-        let st = t.relocalise(&mut map, &mut f, &c, None);
-        assert_eq!(st, TrackingState::Lost);
-        assert_eq!(t.relocalisation_candidates_tried(), 5);
-        assert_eq!(t.relocalisation_budget_cuts, 0);
-    }
-
-    #[test]
-    fn a_spent_budget_stops_after_the_first_candidate() {
-        let (mut t, mut map, mut f, c) = setup(5);
-        let st = t.relocalise(&mut map, &mut f, &c, Some(std::time::Duration::ZERO));
-        assert_eq!(st, TrackingState::Lost);
-        assert_eq!(t.relocalisation_candidates_tried(), 1);
-        assert_eq!(t.relocalisation_budget_cuts, 1);
-        // A generous budget tries them all again.
-        t.relocalise(
-            &mut map,
-            &mut f,
-            &c,
-            Some(std::time::Duration::from_secs(60)),
-        );
-        assert_eq!(t.relocalisation_candidates_tried(), 5);
-        assert_eq!(t.relocalisation_budget_cuts, 1);
-    }
 }

@@ -1,6 +1,7 @@
 //! The atlas on the tracking side: lost in an established map, relocalise in every map and
 //! meanwhile initialise a new one, so frames keep getting poses (loop closing merges the maps
-//! when a place of an older one comes back); a map found wrong is discarded alone.
+//! when a place of an older one comes back); a map found wrong is discarded alone (or rolled
+//! back, see `rollback`).
 
 use super::*;
 

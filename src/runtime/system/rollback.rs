@@ -1,0 +1,221 @@
+//! A map found collapsing (see `tracking::collapse`) is rolled back, not thrown away. The
+//! monitor judges a window of keyframes: the depth collapsed after the window's first one.
+//! What came after it goes (keyframes, the points they created, the poses of those frames);
+//! what came before stays, with every pose in it. Discarding the whole map cost real-time
+//! runs of the outward loop 160-270 good poses for a collapse over 5 frames. There the alarm
+//! was right: over frames 158-163 (264-271) the map's median inlier depth fell to 0.21 (0.18)
+//! of itself while the scene's true median depth changed by under 8%; the reaction was too
+//! wide.
+
+use super::*;
+
+/// What a roll-back erased.
+struct RolledBack {
+    keyframes: usize,
+    points: usize,
+    poses: usize,
+}
+
+impl System {
+    /// A keyframe was made: the collapse monitor's turn. A map found collapsing is rolled
+    /// back to the keyframe its window started from (the depth collapsed after it); a young
+    /// map, with nothing to go back to, is discarded. The report keeps what the monitor
+    /// measured and what went.
+    pub(super) fn watch_for_collapse(&mut self, map: &mut Map) {
+        let Some(evidence) = self.collapse.keyframe(map, &self.frame) else {
+            return;
+        };
+        let c = &self.tracker.config;
+        let mut reason = format!(
+            "frame {}: over {} keyframes the scene depth fell below {} of its value while the camera moved less than {} of the depth lost and turned less than {} deg (scale collapse; {evidence})",
+            self.frame.index,
+            self.collapse.window(),
+            c.collapse_depth_shrink,
+            c.collapse_path_ratio,
+            c.collapse_max_turn_deg
+        );
+        match self.roll_back_active_map(map, &evidence) {
+            Some(r) => {
+                reason += &format!(
+                    "; rolled back to frame {}: {} keyframes, {} points and {} poses after it erased",
+                    evidence.from_frame, r.keyframes, r.points, r.poses
+                );
+                tracing::warn!(%reason, "map diverging: rolled back");
+            }
+            None => {
+                reason += "; map discarded";
+                tracing::warn!(%reason, "map diverging: discarded, initialising again");
+                self.discard_active_map(map);
+            }
+        }
+        self.stats.divergences.push(reason);
+    }
+
+    /// Erases what the active map made after the collapse window's first keyframe: the later
+    /// keyframes, the points they created and the poses of the later frames. Tracking is lost
+    /// and relocalises in what is left (or the atlas starts a new map). `None` (nothing
+    /// erased) when fewer than `young_map_keyframes` + 1 keyframes would be left.
+    fn roll_back_active_map(
+        &mut self,
+        map: &mut Map,
+        evidence: &crate::tracking::CollapseEvidence,
+    ) -> Option<RolledBack> {
+        let id = map.active_map();
+        let kfs = map.keyframes_of(id);
+        let mut later: Vec<(u64, KeyFrameId)> = kfs
+            .iter()
+            .filter_map(|&k| map.keyframe(k).map(|kf| (kf.frame_index, kf.serial, k)))
+            .filter(|&(frame, _, _)| frame > evidence.from_frame)
+            .map(|(_, serial, k)| (serial, k))
+            .collect();
+        if kfs.len() - later.len() <= self.limits.young_map_keyframes {
+            return None;
+        }
+        let first_serial = later.iter().map(|&(s, _)| s).min()?;
+        let mut points: Vec<crate::map::MapPointId> = later
+            .iter()
+            .filter_map(|&(_, k)| map.keyframe(k))
+            .flat_map(|kf| kf.observed().map(|(_, p)| p))
+            .filter(|&p| {
+                map.point(p)
+                    .is_some_and(|mp| mp.first_kf_serial >= first_serial)
+            })
+            .collect();
+        points.sort_unstable();
+        points.dedup();
+        // Poses first: an entry's map is found through its reference keyframe.
+        let before = self.trajectory.len();
+        self.trajectory.retain(|e| {
+            e.timestamp <= evidence.from_timestamp
+                || e.reference.and_then(|r| map.map_of(r)) != Some(id)
+        });
+        let poses = before - self.trajectory.len();
+        for &p in &points {
+            map.erase_point(p);
+        }
+        // Newest first: each is a leaf of the spanning tree when it goes.
+        later.sort_unstable_by_key(|&(serial, _)| std::cmp::Reverse(serial));
+        let keyframes = later
+            .iter()
+            .filter(|&&(_, k)| map.erase_keyframe(k))
+            .count();
+        self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(poses);
+        self.stats.poses_discarded_by_reset += poses;
+        self.backfill = Backfill::default();
+        self.tracker.reset(TrackingState::Lost);
+        self.forget_initialisation();
+        self.collapse.reset();
+        Some(RolledBack {
+            keyframes,
+            points: points.len(),
+            poses,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Frame;
+    use crate::synthetic::{SyntheticConfig, SyntheticSequence};
+    use crate::tracking::CollapseEvidence;
+
+    /// The built-in orbit tracked for 120 frames, rolled back to its keyframe nearest frame
+    /// 60, then frames 61.. again: what went, what stayed, and that tracking resumes in the
+    /// same map at the poses of the first pass.
+    #[test]
+    fn a_roll_back_keeps_the_poses_before_the_window_and_tracking_resumes() {
+        let seq = SyntheticSequence::new(SyntheticConfig::default());
+        let c = &seq.config;
+        let mut config = Config::default();
+        config.semidense.enabled = false;
+        let mut system = System::new(&c.calibration(), &config, 400, false);
+        let mut f = Frame::new(c.width, c.height);
+        let mut first_pass = Vec::new();
+        for i in 0..120 {
+            seq.render_frame(i, &mut f);
+            first_pass.push(
+                system
+                    .process(&f.gray, Some(&f.rgb), f.timestamp, i as u64)
+                    .t_wc,
+            );
+        }
+        assert_eq!(system.state(), TrackingState::Ok);
+        let (from, map_id, kfs_before) = {
+            let map = lock(&system.map);
+            let id = map.active_map();
+            let kfs: Vec<(u64, f64)> = map
+                .keyframes_of(id)
+                .iter()
+                .filter_map(|&k| map.keyframe(k).map(|k| (k.frame_index, k.timestamp)))
+                .collect();
+            let from = *kfs
+                .iter()
+                .min_by_key(|(fi, _)| fi.abs_diff(60))
+                .expect("keyframes");
+            (from, id, kfs)
+        };
+        let later = kfs_before.iter().filter(|(fi, _)| *fi > from.0).count();
+        let traj_before = system.trajectory();
+        let poses_later = traj_before.iter().filter(|p| p.timestamp > from.1).count();
+        assert!(
+            later >= 3 && poses_later >= 20,
+            "{later} keyframes, {poses_later} poses"
+        );
+        let evidence = CollapseEvidence {
+            from_frame: from.0,
+            from_timestamp: from.1,
+            frame: 119,
+            depth_ratio: 0.2,
+            path_per_depth_lost: 0.01,
+            turn_deg: 1.0,
+            inliers: 100,
+        };
+        let r = {
+            let map_arc = Arc::clone(&system.map);
+            let mut map = lock(&map_arc);
+            system.roll_back_active_map(&mut map, &evidence)
+        }
+        .expect("an established map is rolled back");
+        assert_eq!(r.keyframes, later);
+        assert_eq!(r.poses, poses_later);
+        assert!(r.points > 0);
+        assert_eq!(system.state(), TrackingState::Lost);
+        assert_eq!(system.stats.resets, 0, "the map was discarded");
+        {
+            let map = lock(&system.map);
+            assert_eq!(map.active_map(), map_id);
+            let left = map.keyframes_of(map_id);
+            assert_eq!(left.len(), kfs_before.len() - later);
+            assert!(left
+                .iter()
+                .all(|&k| map.keyframe(k).is_some_and(|k| k.frame_index <= from.0)));
+        }
+        let kept = system.trajectory();
+        assert!(kept.iter().all(|p| p.timestamp <= from.1));
+        assert_eq!(kept.len(), traj_before.len() - poses_later);
+        // The camera goes over frames after the window's start again (later timestamps).
+        let dt = 1.0 / c.fps;
+        let mut t = f.timestamp;
+        let (mut resumed, mut worst) = (None, 0.0f64);
+        for (n, i) in (from.0 as usize + 1..120).enumerate() {
+            seq.render_frame(i, &mut f);
+            t += dt;
+            let r = system.process(&f.gray, Some(&f.rgb), t, 1000 + n as u64);
+            if let (Some(now), Some(before)) = (r.t_wc, first_pass[i]) {
+                resumed.get_or_insert(n);
+                worst = worst.max((now.position() - before.position()).norm());
+            }
+        }
+        let resumed = resumed.expect("tracking resumed");
+        assert!(resumed < 10, "tracking resumed only after {resumed} frames");
+        assert_eq!(system.atlas().maps.len(), 1, "a new map was started");
+        // The same places as in the first pass, in the same map frame.
+        let centres: Vec<_> = first_pass.iter().flatten().map(|p| p.position()).collect();
+        let extent = centres
+            .iter()
+            .flat_map(|a| centres.iter().map(move |b| (a - b).norm()))
+            .fold(0.0f64, f64::max);
+        assert!(worst < 0.02 * extent, "{worst} vs extent {extent}");
+    }
+}
