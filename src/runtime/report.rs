@@ -103,12 +103,15 @@ pub struct Report {
     pub wall_time_s: f64,
     /// The final full BA (`[map] final_global_ba`), after the last frame, milliseconds.
     pub final_ba_ms: f64,
-    /// Maps discarded (tracking lost right after initialisation, or a divergence below), and
-    /// the poses of frames tracked in them (dropped: they were in the discarded map's frame).
+    /// Maps discarded (tracking lost right after initialisation, or a young map diverging),
+    /// and the poses dropped with them or by a roll-back (below): they were in a discarded
+    /// map's frame, or tracked while its scale collapsed.
     pub map_resets: usize,
     pub poses_discarded_by_reset: usize,
     /// Maps found diverging (a scale collapse: keyframes that neither move nor turn while the
-    /// view changes) and discarded, each with its frame and reason. Their frames are not `Ok`.
+    /// view's depth falls), each with its frame, the monitor's figures and what was done:
+    /// rolled back to the collapse window's first keyframe (what came after it erased), or,
+    /// when young, discarded. The erased frames' poses are not in the trajectory.
     pub divergences: Vec<String>,
     /// Frames tracked against the map whose pose failed a check of `tracking::quality`: reported
     /// `Degraded` (not to be driven on) and left out of `trajectory.txt`; by reason

@@ -82,9 +82,10 @@ pub struct SystemStats {
     pub tracked_frames: usize,
     pub keyframes_created: usize,
     pub resets: usize,
-    /// Poses dropped from the trajectory by resets (they were in the discarded map's frame).
+    /// Poses dropped from the trajectory by resets and roll-backs (in a discarded map's
+    /// frame, or tracked while a map collapsed).
     pub poses_discarded_by_reset: usize,
-    /// Maps found diverging (scale collapse) and discarded: frame and reason of each.
+    /// Maps found diverging (scale collapse), rolled back or discarded: frame and reason of each.
     pub divergences: Vec<String>,
     /// Frames before initialisation tracked afterwards against the first map.
     pub backfilled_frames: usize,
