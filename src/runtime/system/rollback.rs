@@ -125,11 +125,22 @@ mod tests {
     /// same map at the poses of the first pass.
     #[test]
     fn a_roll_back_keeps_the_poses_before_the_window_and_tracking_resumes() {
+        roll_back_and_resume(false);
+    }
+
+    /// The same with local mapping on its own thread: the roll-back erases keyframes it may
+    /// still have queued or be working on.
+    #[test]
+    fn a_roll_back_under_a_running_mapping_thread() {
+        roll_back_and_resume(true);
+    }
+
+    fn roll_back_and_resume(threaded: bool) {
         let seq = SyntheticSequence::new(SyntheticConfig::default());
         let c = &seq.config;
         let mut config = Config::default();
         config.semidense.enabled = false;
-        let mut system = System::new(&c.calibration(), &config, 400, false);
+        let mut system = System::new(&c.calibration(), &config, 400, threaded);
         let mut f = Frame::new(c.width, c.height);
         let mut first_pass = Vec::new();
         for i in 0..120 {
@@ -141,64 +152,61 @@ mod tests {
             );
         }
         assert_eq!(system.state(), TrackingState::Ok);
-        let (from, map_id, kfs_before) = {
-            let map = lock(&system.map);
-            let id = map.active_map();
-            let kfs: Vec<(u64, f64)> = map
-                .keyframes_of(id)
-                .iter()
-                .filter_map(|&k| map.keyframe(k).map(|k| (k.frame_index, k.timestamp)))
-                .collect();
-            let from = *kfs
-                .iter()
-                .min_by_key(|(fi, _)| fi.abs_diff(60))
-                .expect("keyframes");
-            (from, id, kfs)
-        };
-        let later = kfs_before.iter().filter(|(fi, _)| *fi > from.0).count();
         let traj_before = system.trajectory();
-        let poses_later = traj_before.iter().filter(|p| p.timestamp > from.1).count();
+        // Chosen and rolled back under one lock: a mapping thread may cull keyframes between.
+        let map_arc = Arc::clone(&system.map);
+        let mut map = lock(&map_arc);
+        let map_id = map.active_map();
+        let kfs: Vec<(u64, f64)> = map
+            .keyframes_of(map_id)
+            .iter()
+            .filter_map(|&k| map.keyframe(k).map(|k| (k.frame_index, k.timestamp)))
+            .collect();
+        let Some(&(from_frame, from_ts)) = kfs.iter().min_by_key(|(fi, _)| fi.abs_diff(60)) else {
+            panic!("no keyframe");
+        };
+        let later = kfs.iter().filter(|(fi, _)| *fi > from_frame).count();
+        let poses_later = system
+            .trajectory
+            .iter()
+            .filter(|e| e.timestamp > from_ts)
+            .count();
         assert!(
             later >= 3 && poses_later >= 20,
             "{later} keyframes, {poses_later} poses"
         );
         let evidence = CollapseEvidence {
-            from_frame: from.0,
-            from_timestamp: from.1,
+            from_frame,
+            from_timestamp: from_ts,
             frame: 119,
             depth_ratio: 0.2,
             path_per_depth_lost: 0.01,
             turn_deg: 1.0,
             inliers: 100,
         };
-        let r = {
-            let map_arc = Arc::clone(&system.map);
-            let mut map = lock(&map_arc);
-            system.roll_back_active_map(&mut map, &evidence)
-        }
-        .expect("an established map is rolled back");
+        let Some(r) = system.roll_back_active_map(&mut map, &evidence) else {
+            panic!("an established map was not rolled back");
+        };
         assert_eq!(r.keyframes, later);
         assert_eq!(r.poses, poses_later);
         assert!(r.points > 0);
+        assert_eq!(map.active_map(), map_id);
+        let left = map.keyframes_of(map_id);
+        assert!(left.len() <= kfs.len() - later);
+        assert!(left
+            .iter()
+            .all(|&k| map.keyframe(k).is_some_and(|k| k.frame_index <= from_frame)));
+        drop(map);
         assert_eq!(system.state(), TrackingState::Lost);
         assert_eq!(system.stats.resets, 0, "the map was discarded");
-        {
-            let map = lock(&system.map);
-            assert_eq!(map.active_map(), map_id);
-            let left = map.keyframes_of(map_id);
-            assert_eq!(left.len(), kfs_before.len() - later);
-            assert!(left
-                .iter()
-                .all(|&k| map.keyframe(k).is_some_and(|k| k.frame_index <= from.0)));
-        }
         let kept = system.trajectory();
-        assert!(kept.iter().all(|p| p.timestamp <= from.1));
+        assert!(kept.iter().all(|p| p.timestamp <= from_ts));
         assert_eq!(kept.len(), traj_before.len() - poses_later);
         // The camera goes over frames after the window's start again (later timestamps).
         let dt = 1.0 / c.fps;
         let mut t = f.timestamp;
         let (mut resumed, mut worst) = (None, 0.0f64);
-        for (n, i) in (from.0 as usize + 1..120).enumerate() {
+        for (n, i) in (from_frame as usize + 1..120).enumerate() {
             seq.render_frame(i, &mut f);
             t += dt;
             let r = system.process(&f.gray, Some(&f.rgb), t, 1000 + n as u64);
@@ -207,7 +215,9 @@ mod tests {
                 worst = worst.max((now.position() - before.position()).norm());
             }
         }
-        let resumed = resumed.expect("tracking resumed");
+        let Some(resumed) = resumed else {
+            panic!("tracking did not resume");
+        };
         assert!(resumed < 10, "tracking resumed only after {resumed} frames");
         assert_eq!(system.atlas().maps.len(), 1, "a new map was started");
         // The same places as in the first pass, in the same map frame.
