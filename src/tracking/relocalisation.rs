@@ -18,13 +18,18 @@ impl Tracker {
             .is_some_and(|r| index < r + self.config.relocalisation_settle_frames)
     }
 
+    /// Inliers a relocalised frame (and one settling after it) needs.
+    fn relocalised_inliers(&self) -> usize {
+        self.config
+            .min_inliers
+            .max(self.config.min_inliers_after_relocalisation)
+    }
+
     /// Inliers frame `index` needs to be tracked: `min_inliers`, or ORB-SLAM's higher bar
     /// while settling after a relocalisation.
     pub(super) fn inliers_needed(&self, index: u64) -> usize {
         if self.settling(index) {
-            self.config
-                .min_inliers
-                .max(self.config.min_inliers_after_relocalisation)
+            self.relocalised_inliers()
         } else {
             self.config.min_inliers
         }
@@ -113,11 +118,7 @@ impl Tracker {
             let n = local.track(self, map, f);
             self.local = local;
             tracing::trace!(frame = f.index, candidate = ?c, refined, local = n, "relocalisation: local map tracked");
-            if n >= self
-                .config
-                .min_inliers
-                .max(self.config.min_inliers_after_relocalisation)
-            {
+            if n >= self.relocalised_inliers() {
                 // A relocalisation the checks doubt is not taken: the next candidate is tried.
                 let (q, degraded) = self.judge_pose(f, None);
                 if degraded.is_some() {

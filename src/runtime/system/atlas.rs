@@ -87,6 +87,12 @@ impl System {
         if let Some(&newest) = map.map_ids().last() {
             map.set_active_map(newest);
         }
+        self.lost_after_map_edit();
+    }
+
+    /// The active map lost what tracking stood on (discarded or rolled back): lost, with the
+    /// backfill, initialisation attempts and the collapse window started over.
+    pub(super) fn lost_after_map_edit(&mut self) {
         self.backfill = Backfill::default();
         self.tracker.reset(TrackingState::Lost);
         self.forget_initialisation();
@@ -96,14 +102,27 @@ impl System {
     /// Erases map `id` with the poses of the frames tracked in it (counted as a reset).
     /// Tracking, the backfill and the active map are the caller's.
     fn discard_map(&mut self, map: &mut Map, id: u32) {
-        let before = self.trajectory.len();
-        self.trajectory
-            .retain(|e| e.reference.and_then(|r| map.map_of(r)) != Some(id));
-        let discarded = before - self.trajectory.len();
-        self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(discarded);
-        self.stats.poses_discarded_by_reset += discarded;
+        self.drop_poses_in_map(map, id, |_| true);
         map.erase_map(id);
         self.stats.resets += 1;
+    }
+
+    /// Drops the trajectory entries of map `id` that `drop` selects (by timestamp), before
+    /// the map's keyframes go (an entry's map is found through its reference keyframe);
+    /// returns how many went.
+    pub(super) fn drop_poses_in_map(
+        &mut self,
+        map: &Map,
+        id: u32,
+        drop: impl Fn(f64) -> bool,
+    ) -> usize {
+        let before = self.trajectory.len();
+        self.trajectory
+            .retain(|e| !drop(e.timestamp) || e.reference.and_then(|r| map.map_of(r)) != Some(id));
+        let dropped = before - self.trajectory.len();
+        self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(dropped);
+        self.stats.poses_discarded_by_reset += dropped;
+        dropped
     }
 
     /// The maps of the run and which is primary.

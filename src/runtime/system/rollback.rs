@@ -83,13 +83,7 @@ impl System {
             .collect();
         points.sort_unstable();
         points.dedup();
-        // Poses first: an entry's map is found through its reference keyframe.
-        let before = self.trajectory.len();
-        self.trajectory.retain(|e| {
-            e.timestamp <= evidence.from_timestamp
-                || e.reference.and_then(|r| map.map_of(r)) != Some(id)
-        });
-        let poses = before - self.trajectory.len();
+        let poses = self.drop_poses_in_map(map, id, |t| t > evidence.from_timestamp);
         for &p in &points {
             map.erase_point(p);
         }
@@ -99,12 +93,7 @@ impl System {
             .iter()
             .filter(|&&(_, k)| map.erase_keyframe(k))
             .count();
-        self.stats.tracked_frames = self.stats.tracked_frames.saturating_sub(poses);
-        self.stats.poses_discarded_by_reset += poses;
-        self.backfill = Backfill::default();
-        self.tracker.reset(TrackingState::Lost);
-        self.forget_initialisation();
-        self.collapse.reset();
+        self.lost_after_map_edit();
         Some(RolledBack {
             keyframes,
             points: points.len(),
