@@ -444,6 +444,7 @@ impl Config {
             ),
             ("initialisation.ransac_iterations", i.ransac_iterations),
             ("initialisation.min_triangulated", i.min_triangulated),
+            ("initialisation.min_matches", i.min_matches),
             ("relocalisation.min_inliers", r.min_inliers),
             ("relocalisation.max_iterations", r.max_iterations),
             ("motion_only.rounds", m.rounds),

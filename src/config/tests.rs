@@ -17,6 +17,14 @@ fn defaults_are_the_published_parameters() {
     assert_eq!(c.semidense.n_neighbours, 7);
     assert_eq!(c.semidense.lambda_n, 3);
     assert_eq!(c.semidense.theta, 0.23);
+    // ORB-SLAM's monocular initialisation: 100 matches, 100 points in the initial map.
+    assert_eq!(
+        (
+            c.initialisation.min_matches,
+            c.initialisation.min_initial_map_points
+        ),
+        (100, 100)
+    );
 }
 
 #[test]
@@ -89,6 +97,10 @@ fn every_stage_is_configurable_and_checked() {
             "tracking.keyframe_ratio",
         ),
         ("[initialisation]\nsigma = nan", "initialisation.sigma"),
+        (
+            "[initialisation]\nmin_matches = 0",
+            "initialisation.min_matches",
+        ),
         (
             "[relocalisation]\nmin_inliers = 0",
             "relocalisation.min_inliers",

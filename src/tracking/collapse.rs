@@ -164,13 +164,15 @@ mod tests {
         f.t_cw = t_wc.inverse();
         f.points.clear();
         f.outlier.clear();
-        let kf = map.insert_keyframe(|_| {}).expect("room for a keyframe");
+        let Ok(kf) = map.insert_keyframe(|_| {}) else {
+            panic!("the test map has room for a keyframe");
+        };
         for (i, &z) in depths.iter().enumerate() {
             // Spread the points a little across the view; depth along the optical axis.
             let x = 0.01 * z * (i as f64 - depths.len() as f64 / 2.0);
-            let p = map
-                .insert_point(t_wc.transform(&Vector3::new(x, 0.0, z)), kf)
-                .expect("room for a point");
+            let Ok(p) = map.insert_point(t_wc.transform(&Vector3::new(x, 0.0, z)), kf) else {
+                panic!("the test map has room for the points");
+            };
             f.points.push(Some(p));
             f.outlier.push(false);
         }

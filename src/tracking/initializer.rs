@@ -34,8 +34,6 @@ pub struct Initializer {
     /// Where each reference keypoint was last matched: the centre of its next search window.
     prev_matched: Vec<[f32; 2]>,
     pub config: TwoViewConfig,
-    /// Minimum features in a reference frame and minimum matches to attempt (ORB-SLAM: 100).
-    pub min_matches: usize,
     /// Frames seen since the reference (features kept so they can be tracked once the map
     /// exists); a fixed ring of `pending_capacity` slots, reused.
     pub pending: Vec<PendingFrame>,
@@ -105,7 +103,6 @@ impl Initializer {
             matches: Vec::with_capacity(max_features),
             prev_matched: Vec::with_capacity(max_features),
             config: TwoViewConfig::default(),
-            min_matches: 100,
             pending: (0..PENDING_CAPACITY)
                 .map(|_| PendingFrame {
                     features: Features::with_capacity(max_features),
@@ -225,7 +222,7 @@ impl Initializer {
     /// and the matched pixels (or why there is nothing to solve).
     pub fn prepare(&mut self, f: &TrackedFrame, gray: &[u8], rgb: Option<&[u8]>) -> Prepared {
         let Some(r) = &self.reference else {
-            if f.features.len() > self.min_matches {
+            if f.features.len() > self.config.min_matches {
                 self.set_reference(f, gray, rgb);
             }
             return Prepared::Done(InitAttempt::NewReference);
@@ -250,9 +247,9 @@ impl Initializer {
                 *c = [k.ux, k.uy];
             }
         }
-        if n < self.min_matches {
+        if n < self.config.min_matches {
             // Too far from the reference: start over from this frame (ORB-SLAM's policy).
-            if f.features.len() > self.min_matches {
+            if f.features.len() > self.config.min_matches {
                 self.set_reference(f, gray, rgb);
             } else {
                 self.reset();
@@ -372,5 +369,24 @@ mod tests {
         }
         init.reset();
         assert!(init.pending().is_empty());
+    }
+
+    #[test]
+    fn the_match_bar_comes_from_the_config() {
+        let gray = vec![0u8; 640 * 480];
+        let f = unmatched_frame(0, 1);
+        // 150 features: enough for ORB-SLAM's 100, not for a bar of 200.
+        let mut init = Initializer::new(200, 640, 480);
+        let _ = init.prepare(&f, &gray, None);
+        assert!(init.reference.is_some());
+        let mut init = Initializer::new(200, 640, 480).with_config(TwoViewConfig {
+            min_matches: 200,
+            ..TwoViewConfig::default()
+        });
+        let _ = init.prepare(&f, &gray, None);
+        assert!(
+            init.reference.is_none(),
+            "a frame of 150 features became the reference"
+        );
     }
 }

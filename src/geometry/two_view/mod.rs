@@ -45,6 +45,9 @@ pub struct TwoViewConfig {
     /// Map points the initial map must keep after its two-view BA, or it is refused
     /// (ORB-SLAM monocular: 100).
     pub min_initial_map_points: usize,
+    /// Matches the current frame needs with the reference for an attempt (ORB-SLAM: 100);
+    /// with fewer, the current frame becomes the reference. A reference needs more features.
+    pub min_matches: usize,
 }
 
 impl Default for TwoViewConfig {
@@ -61,6 +64,7 @@ impl Default for TwoViewConfig {
             agreement_deg: 3.0,
             cross_check_margin: 1.05,
             min_initial_map_points: 100,
+            min_matches: 100,
         }
     }
 }
