@@ -419,6 +419,7 @@ impl Config {
             ("tracking.keyframe_ratio", t.keyframe_ratio),
             ("initialisation.h_selection_ratio", i.h_selection_ratio),
             ("initialisation.min_good_share", i.min_good_share),
+            ("initialisation.min_match_share", i.min_match_share),
             ("tracking.collapse_depth_shrink", t.collapse_depth_shrink),
             ("relocalisation.probability", r.probability),
             ("local_mapping.min_found_ratio", l.min_found_ratio),

@@ -102,6 +102,10 @@ fn every_stage_is_configurable_and_checked() {
             "initialisation.min_matches",
         ),
         (
+            "[initialisation]\nmin_match_share = 1.5",
+            "initialisation.min_match_share",
+        ),
+        (
             "[relocalisation]\nmin_inliers = 0",
             "relocalisation.min_inliers",
         ),

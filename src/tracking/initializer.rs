@@ -122,6 +122,24 @@ impl Initializer {
         self
     }
 
+    /// Matches an attempt from the current reference needs (no reference: `min_matches`):
+    /// [`TwoViewConfig::required_matches`].
+    pub fn required_matches(&self) -> usize {
+        match &self.reference {
+            Some(r) => self.config.required_matches(r.len()),
+            None => self.config.min_matches,
+        }
+    }
+
+    /// Points a map initialised from the current reference must keep:
+    /// [`TwoViewConfig::required_map_points`].
+    pub fn required_map_points(&self) -> usize {
+        match &self.reference {
+            Some(r) => self.config.required_map_points(r.len()),
+            None => self.config.min_initial_map_points,
+        }
+    }
+
     /// Frames kept since the reference, oldest first.
     pub fn pending(&self) -> &[PendingFrame] {
         &self.pending[..self.pending_len]
@@ -247,7 +265,7 @@ impl Initializer {
                 *c = [k.ux, k.uy];
             }
         }
-        if n < self.config.min_matches {
+        if n < self.required_matches() {
             // Too far from the reference: start over from this frame (ORB-SLAM's policy).
             if f.features.len() > self.config.min_matches {
                 self.set_reference(f, gray, rgb);
@@ -369,6 +387,79 @@ mod tests {
         }
         init.reset();
         assert!(init.pending().is_empty());
+    }
+
+    /// The reference `r` seen again: the first `shared` of its keypoints one pixel to the
+    /// right, with the same descriptors, then unrelated ones up to 150 features.
+    fn seen_again(r: &TrackedFrame, shared: usize) -> TrackedFrame {
+        let mut f = unmatched_frame(1, 99);
+        for i in 0..shared {
+            let k = &mut f.features.keypoints[i];
+            *k = r.features.keypoints[i];
+            k.x += 1.0;
+            k.ux += 1.0;
+            f.features.descriptors[i] = r.features.descriptors[i];
+        }
+        f.reset_matches();
+        f
+    }
+
+    #[test]
+    fn a_weakly_textured_reference_lowers_the_bars_to_its_share() {
+        let c = TwoViewConfig::default();
+        // ORB-SLAM's fixed bars from 334 features up.
+        assert_eq!(
+            (c.required_matches(1000), c.required_map_points(1000)),
+            (100, 100)
+        );
+        assert_eq!(c.required_matches(334), 100);
+        // A blank wall's 200 features: 30% of them; never under what the solver triangulates.
+        assert_eq!(
+            (c.required_matches(200), c.required_map_points(200)),
+            (60, 60)
+        );
+        assert_eq!(
+            (c.required_matches(150), c.required_map_points(150)),
+            (50, 50)
+        );
+        // A share of 1 restores the fixed bars; a stricter initial-map bar holds on texture.
+        let fixed = TwoViewConfig {
+            min_match_share: 1.0,
+            ..c.clone()
+        };
+        assert_eq!(
+            (fixed.required_matches(150), fixed.required_map_points(150)),
+            (100, 100)
+        );
+        let strict = TwoViewConfig {
+            min_initial_map_points: 150,
+            ..c.clone()
+        };
+        assert_eq!(strict.required_map_points(1000), 150);
+
+        // 70 matches with a reference of 150 features: an attempt, where ORB-SLAM's fixed 100
+        // would renew the reference instead.
+        let gray = vec![0u8; 640 * 480];
+        let r = unmatched_frame(0, 1);
+        let again = seen_again(&r, 70);
+        let mut init = Initializer::new(200, 640, 480);
+        let _ = init.prepare(&r, &gray, None);
+        assert_eq!(
+            (init.required_matches(), init.required_map_points()),
+            (50, 50)
+        );
+        match init.prepare(&again, &gray, None) {
+            Prepared::Solve(p) => assert_eq!(p.pairs.len(), 70),
+            Prepared::Done(a) => panic!("no attempt: {a:?}"),
+        }
+        let mut init = Initializer::new(200, 640, 480).with_config(fixed);
+        let _ = init.prepare(&r, &gray, None);
+        match init.prepare(&again, &gray, None) {
+            Prepared::Done(InitAttempt::TooFewMatches(70)) => {}
+            Prepared::Done(a) => panic!("expected too few matches, got {a:?}"),
+            Prepared::Solve(p) => panic!("an attempt on {} matches", p.pairs.len()),
+        }
+        assert_eq!(init.reference_index, 1, "the reference was not renewed");
     }
 
     #[test]

@@ -48,6 +48,34 @@ pub struct TwoViewConfig {
     /// Matches the current frame needs with the reference for an attempt (ORB-SLAM: 100);
     /// with fewer, the current frame becomes the reference. A reference needs more features.
     pub min_matches: usize,
+    /// On a weakly textured reference the match bar and the initial map's point bar are this
+    /// share of its features instead, never under `min_triangulated` (ours, not ORB-SLAM's;
+    /// 1 restores its fixed bars). ORB-SLAM's 100 is 5-10% of the 1000-2000 features it
+    /// extracts; two successive frames of a blank wall that keep 150-220 features share 60-85
+    /// matches, so the reference was renewed every frame, the baseline never grew, and a
+    /// robot that lost track there went 24-30 frames without a pose (docs/PERFORMANCE.md).
+    pub min_match_share: f64,
+}
+
+impl TwoViewConfig {
+    /// Matches (and initial map points) an attempt from a reference of `features` keypoints
+    /// needs: `min_matches`, or `min_match_share` of a weakly textured reference's features,
+    /// at least `min_triangulated`.
+    pub fn required_matches(&self, features: usize) -> usize {
+        let share = (self.min_match_share * features as f64).floor() as usize;
+        share.max(self.min_triangulated).min(self.min_matches)
+    }
+
+    /// Points the initial map from a reference of `features` keypoints must keep:
+    /// `min_initial_map_points`, lowered to the match bar on a weakly textured reference.
+    pub fn required_map_points(&self, features: usize) -> usize {
+        let matches = self.required_matches(features);
+        if matches < self.min_matches {
+            self.min_initial_map_points.min(matches)
+        } else {
+            self.min_initial_map_points
+        }
+    }
 }
 
 impl Default for TwoViewConfig {
@@ -65,6 +93,7 @@ impl Default for TwoViewConfig {
             cross_check_margin: 1.05,
             min_initial_map_points: 100,
             min_matches: 100,
+            min_match_share: 0.3,
         }
     }
 }

@@ -180,6 +180,7 @@ impl System {
         pairs: Vec<(u32, u32)>,
     ) -> TrackingState {
         let t_build = std::time::Instant::now();
+        let min_points = self.init.required_map_points();
         let Some(reference) = self.init.reference.take() else {
             return TrackingState::NotInitialised;
         };
@@ -249,7 +250,7 @@ impl System {
             return TrackingState::NotInitialised;
         };
         let tracked = map.keyframe(kf1).map_or(0, |k| k.observed().count());
-        if tracked < self.init.config.min_initial_map_points {
+        if tracked < min_points {
             discard(map);
             return TrackingState::NotInitialised;
         }
