@@ -88,12 +88,17 @@ impl Map {
 
     /// Erases a keyframe: its observations go (points left with < 2 observations are erased),
     /// neighbours drop it, and its children are re-parented to the most covisible keyframe
-    /// already in the tree (ORB-SLAM's spanning-tree repair). The first keyframe is never erased.
+    /// already in the tree (ORB-SLAM's spanning-tree repair). The first keyframe (the root) is
+    /// never erased. A keyframe that local mapping has not connected yet (no parent, no
+    /// children, no covisibility links) can be: a roll-back under a running mapping thread
+    /// erases keyframes still in its queue, and once left behind such a keyframe would be
+    /// connected later with its collapsed pose.
     pub fn erase_keyframe(&mut self, kf: KeyFrameId) -> bool {
         let Some(k) = self.keyframes.get(kf) else {
             return false;
         };
-        if k.parent.is_none() {
+        let unconnected = k.children.is_empty() && k.covisibles.is_empty();
+        if k.parent.is_none() && !unconnected {
             return false; // root
         }
         let observed: Vec<MapPointId> = k.observed().map(|(_, p)| p).collect();

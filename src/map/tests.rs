@@ -91,6 +91,19 @@ fn erasing_a_keyframe_reparents_children_and_drops_orphan_points() {
     assert!(m.keyframe(k2).unwrap().points[60].is_some());
     // The root cannot be erased.
     assert!(!m.erase_keyframe(k0));
+    // A keyframe not connected yet (local mapping has not run on it) can, with its views.
+    let k3 = add_kf(&mut m, 100, 0.3);
+    share(&mut m, k0, k3, 80..90);
+    assert!(m.keyframe(k3).unwrap().parent.is_none());
+    let points_before = m.n_points();
+    assert!(m.erase_keyframe(k3));
+    assert!(m.keyframe(k3).is_none());
+    assert_eq!(
+        m.n_points(),
+        points_before - 10,
+        "points it alone confirmed"
+    );
+    assert!(!m.keyframe(k0).unwrap().children.contains(&k3));
 }
 
 #[test]

@@ -53,14 +53,14 @@ pub struct TwoViewConfig {
     /// 1 restores its fixed bars). ORB-SLAM's 100 is 5-10% of the 1000-2000 features it
     /// extracts; two successive frames of a blank wall that keep 150-220 features share 60-85
     /// matches, so the reference was renewed every frame, the baseline never grew, and a
-    /// robot that lost track there went 24-30 frames without a pose (docs/PERFORMANCE.md).
+    /// robot that lost track there went 24-32 frames without a pose (docs/PERFORMANCE.md).
     pub min_match_share: f64,
 }
 
 impl TwoViewConfig {
-    /// Matches (and initial map points) an attempt from a reference of `features` keypoints
-    /// needs: `min_matches`, or `min_match_share` of a weakly textured reference's features,
-    /// at least `min_triangulated`.
+    /// Matches an attempt from a reference of `features` keypoints needs: `min_matches`, or
+    /// `min_match_share` of a weakly textured reference's features, at least
+    /// `min_triangulated`.
     pub fn required_matches(&self, features: usize) -> usize {
         let share = (self.min_match_share * features as f64).floor() as usize;
         share.max(self.min_triangulated).min(self.min_matches)
