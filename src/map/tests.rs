@@ -94,7 +94,7 @@ fn erasing_a_keyframe_reparents_children_and_drops_orphan_points() {
     // A keyframe not connected yet (local mapping has not run on it) can, with its views.
     let k3 = add_kf(&mut m, 100, 0.3);
     share(&mut m, k0, k3, 80..90);
-    assert!(m.keyframe(k3).unwrap().parent.is_none());
+    assert!(m.keyframe(k3).is_some_and(|k| k.parent.is_none()));
     let points_before = m.n_points();
     assert!(m.erase_keyframe(k3));
     assert!(m.keyframe(k3).is_none());
@@ -103,7 +103,7 @@ fn erasing_a_keyframe_reparents_children_and_drops_orphan_points() {
         points_before - 10,
         "points it alone confirmed"
     );
-    assert!(!m.keyframe(k0).unwrap().children.contains(&k3));
+    assert!(m.keyframe(k0).is_some_and(|k| !k.children.contains(&k3)));
 }
 
 #[test]
