@@ -407,30 +407,30 @@ mod tests {
     #[test]
     fn a_weakly_textured_reference_lowers_the_bars_to_its_share() {
         let c = TwoViewConfig::default();
-        // ORB-SLAM's fixed bars from 334 features up.
-        assert_eq!(
-            (c.required_matches(1000), c.required_map_points(1000)),
-            (100, 100)
-        );
-        assert_eq!(c.required_matches(334), 100);
-        // A blank wall's 200 features: 30% of them; never under what the solver triangulates.
-        assert_eq!(
-            (c.required_matches(200), c.required_map_points(200)),
-            (60, 60)
-        );
-        assert_eq!(
-            (c.required_matches(150), c.required_map_points(150)),
-            (50, 50)
-        );
-        // A share of 1 restores the fixed bars; a stricter initial-map bar holds on texture.
         let fixed = TwoViewConfig {
             min_match_share: 1.0,
             ..c.clone()
         };
-        assert_eq!(
-            (fixed.required_matches(150), fixed.required_map_points(150)),
-            (100, 100)
-        );
+        // (bars, reference features, expected matches and initial map points):
+        let cases = [
+            // ORB-SLAM's fixed bars from 334 features up;
+            (&c, 1000, (100, 100)),
+            (&c, 334, (100, 100)),
+            // a blank wall's 200 features: 30% of them;
+            (&c, 200, (60, 60)),
+            // never under what the solver triangulates;
+            (&c, 150, (50, 50)),
+            // a share of 1 restores the fixed bars.
+            (&fixed, 150, (100, 100)),
+        ];
+        for (bars, features, expected) in cases {
+            let got = (
+                bars.required_matches(features),
+                bars.required_map_points(features),
+            );
+            assert_eq!(got, expected, "{features} features");
+        }
+        // A stricter initial-map bar holds on texture.
         let strict = TwoViewConfig {
             min_initial_map_points: 150,
             ..c.clone()
