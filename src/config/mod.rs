@@ -398,6 +398,10 @@ impl Config {
             ("initialisation.agreement_deg", i.agreement_deg),
             ("tracking.collapse_path_ratio", t.collapse_path_ratio),
             ("tracking.collapse_max_turn_deg", t.collapse_max_turn_deg),
+            (
+                "tracking.collapse_young_over_old",
+                t.collapse_young_over_old,
+            ),
             ("tracking.max_centre_sigma_ratio", t.max_centre_sigma_ratio),
             ("tracking.max_mean_chi2", t.max_mean_chi2),
             ("tracking.max_jump_ratio", t.max_jump_ratio),
@@ -421,6 +425,10 @@ impl Config {
             ("initialisation.min_good_share", i.min_good_share),
             ("initialisation.min_match_share", i.min_match_share),
             ("tracking.collapse_depth_shrink", t.collapse_depth_shrink),
+            (
+                "tracking.collapse_young_over_old",
+                t.collapse_young_over_old,
+            ),
             ("relocalisation.probability", r.probability),
             ("local_mapping.min_found_ratio", l.min_found_ratio),
             ("local_mapping.redundancy", l.redundancy),

@@ -62,6 +62,11 @@ pub struct TrackingConfig {
     pub collapse_depth_shrink: f64,
     pub collapse_max_turn_deg: f64,
     pub collapse_keyframes: usize,
+    /// The turn is no excuse when the points the window's keyframes made sit nearer than
+    /// this share of the depth of the older points beside them (median over image cells
+    /// holding both; `tracking::collapse`). On the same surfaces the two agree: a map whose
+    /// motion shrank triangulates its new points from too short baselines, too near.
+    pub collapse_young_over_old: f64,
     /// A tracked pose is `Degraded`, not `Ok` (see `tracking::quality`; ours, not ORB-SLAM's),
     /// when its camera centre's 1-sigma uncertainty exceeds this share of the median scene
     /// depth (every sequence of the robustness suite stays below 0.011)...
@@ -97,6 +102,7 @@ impl Default for TrackingConfig {
             collapse_depth_shrink: 0.25,
             collapse_max_turn_deg: 15.0,
             collapse_keyframes: 5,
+            collapse_young_over_old: 0.5,
             max_centre_sigma_ratio: 0.02,
             max_mean_chi2: 3.0,
             max_jump_ratio: 0.15,

@@ -110,6 +110,10 @@ fn every_stage_is_configurable_and_checked() {
             "relocalisation.min_inliers",
         ),
         (
+            "[tracking]\ncollapse_young_over_old = 0",
+            "tracking.collapse_young_over_old",
+        ),
+        (
             "[local_mapping]\nredundancy = 0",
             "local_mapping.redundancy",
         ),

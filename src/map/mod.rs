@@ -134,6 +134,11 @@ impl Map {
         self.corrections += 1;
     }
 
+    /// The serial the next keyframe will get (one past the newest's).
+    pub fn next_serial(&self) -> u64 {
+        self.next_serial
+    }
+
     pub fn keyframe(&self, id: KeyFrameId) -> Option<&KeyFrame> {
         self.keyframes.get(id)
     }

@@ -26,13 +26,20 @@ impl System {
             return;
         };
         let c = &self.tracker.config;
+        let turn = if evidence.turn_deg < c.collapse_max_turn_deg {
+            format!("turned less than {} deg", c.collapse_max_turn_deg)
+        } else {
+            format!(
+                "turned, but to no nearer view: its new points sit nearer than {} of the old ones' depth beside them",
+                c.collapse_young_over_old
+            )
+        };
         let mut reason = format!(
-            "frame {}: over {} keyframes the scene depth fell below {} of its value while the camera moved less than {} of the depth lost and turned less than {} deg (scale collapse; {evidence})",
+            "frame {}: over {} keyframes the scene depth fell below {} of its value while the camera moved less than {} of the depth lost and {turn} (scale collapse; {evidence})",
             self.frame.index,
             self.collapse.window(),
             c.collapse_depth_shrink,
             c.collapse_path_ratio,
-            c.collapse_max_turn_deg
         );
         match self.roll_back_active_map(map, &evidence) {
             Some(r) => {
@@ -172,6 +179,7 @@ mod tests {
             path_per_depth_lost: 0.01,
             turn_deg: 1.0,
             inliers: 100,
+            young_over_old: None,
         };
         let Some(r) = system.roll_back_active_map(&mut map, &evidence) else {
             panic!("an established map was not rolled back");
