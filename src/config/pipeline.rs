@@ -55,7 +55,8 @@ pub struct TrackingConfig {
     /// Scale collapse (see `tracking::collapse`): over `collapse_keyframes` keyframes the
     /// median scene depth fell below `collapse_depth_shrink` of its value while the camera
     /// travelled less than `collapse_path_ratio` of the depth lost and turned less than
-    /// `collapse_max_turn_deg`: the map is rolled back to the window's first keyframe (what
+    /// `collapse_max_turn_deg` (or turned, but with new points nearer than the old ones, see
+    /// `collapse_young_over_old`): the map is rolled back to the window's first keyframe (what
     /// it made after it erased, with those frames' poses; see `runtime::system::rollback`),
     /// or discarded when no more than `young_map_keyframes` would be left.
     pub collapse_path_ratio: f64,

@@ -108,8 +108,8 @@ pub struct Report {
     /// map's frame, or tracked while its scale collapsed.
     pub map_resets: usize,
     pub poses_discarded_by_reset: usize,
-    /// Maps found diverging (a scale collapse: keyframes that neither move nor turn while the
-    /// view's depth falls), each with its frame, the monitor's figures and what was done:
+    /// Maps found diverging (a scale collapse: keyframes that neither move nor turn to a
+    /// nearer view while the view's depth falls), each with its frame, the monitor's figures and what was done:
     /// rolled back to the collapse window's first keyframe (what came after it erased), or,
     /// when young, discarded. The erased frames' poses are not in the trajectory.
     pub divergences: Vec<String>,
