@@ -109,9 +109,10 @@ pub struct Report {
     pub map_resets: usize,
     pub poses_discarded_by_reset: usize,
     /// Maps found diverging (a scale collapse: keyframes that neither move nor turn to a
-    /// nearer view while the view's depth falls), each with its frame, the monitor's figures and what was done:
-    /// rolled back to the collapse window's first keyframe (what came after it erased), or,
-    /// when young, discarded. The erased frames' poses are not in the trajectory.
+    /// nearer view while the view's depth falls), each with its frame, the monitor's figures
+    /// and what was done: rolled back to the collapse window's first keyframe (what came
+    /// after it erased), or, when young, discarded. The erased frames' poses are not in the
+    /// trajectory.
     pub divergences: Vec<String>,
     /// Frames tracked against the map whose pose failed a check of `tracking::quality`: reported
     /// `Degraded` (not to be driven on) and left out of `trajectory.txt`; by reason

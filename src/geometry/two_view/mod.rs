@@ -291,9 +291,6 @@ fn cross_check(
             // F's own points (not bound to the homography's plane), when its motion is the
             // homography's too (on a plane F's reconstruction can drift from it).
             Ok(general) if agrees(&general, &planar, cfg) => Ok(general),
-            // Few points chose among the homography's motions and F's reconstruction is not
-            // the one they chose: the choice was wrong (the refinement slid from it to F's
-            // motion). F's, if it is the refined motion; otherwise wait.
             // Few points chose among the homography's motions, and the refinement left the
             // chosen one for another translation direction altogether (F's): the choice was
             // wrong. F's reconstruction, if it is that refined motion; otherwise wait.
@@ -378,8 +375,6 @@ fn slid_away(m: &TwoViewMotion, t: &Vector3<f64>) -> bool {
 /// Whether two recovered motions have the same essential matrix (unrefined: on a plane the
 /// Sampson refinement can slide along F's family).
 fn agrees(a: &TwoViewMotion, b: &TwoViewMotion, cfg: &TwoViewConfig) -> bool {
-    let ra = a.t_21.rotation.to_rotation_matrix().into_inner();
     let rb = b.t_21.rotation.to_rotation_matrix().into_inner();
-    let (ta, tb) = (a.t_21.translation.vector, b.t_21.translation.vector);
-    same_essential(&ra, &ta, &rb, &tb, cfg.agreement_deg)
+    agrees_with(a, &rb, &b.t_21.translation.vector, cfg)
 }
