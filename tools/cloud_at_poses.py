@@ -12,6 +12,8 @@ usage: tools/cloud_at_poses.py CLOUD.ply FROM_POSES.txt TO_POSES.txt OUT.ply
 import sys
 import numpy as np
 
+from robustness import umeyama  # tools/robustness.py: the suite's Sim3 alignment
+
 
 def read_tum(p):
     return {round(float(l.split()[0]), 6): np.array([float(x) for x in l.split()[1:8]])
@@ -45,12 +47,7 @@ def main():
     ts = sorted(dst)
     a = np.array([src[near(src, t)][:3] for t in ts]); b = np.array([dst[t][:3] for t in ts])
     # Scale of FROM's units in TO's: Umeyama between the keyframe centres.
-    a0, b0 = a - a.mean(0), b - b.mean(0)
-    u, sig, vt = np.linalg.svd(b0.T @ a0 / len(ts))
-    flip = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        flip[2, 2] = -1
-    scale = np.trace(np.diag(sig) @ flip) / (a0 ** 2).sum(1).mean()
+    scale, _, _ = umeyama(a, b)
     for t in np.unique(pts['t']):
         m = pts['t'] == t
         x = np.stack([pts['x'][m], pts['y'][m], pts['z'][m], np.ones(m.sum())])

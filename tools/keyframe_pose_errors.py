@@ -10,6 +10,8 @@ usage: tools/keyframe_pose_errors.py KEYFRAMES.txt GROUNDTRUTH.txt [--each]
 import sys
 import numpy as np
 
+from robustness import umeyama  # tools/robustness.py: the suite's Sim3 alignment
+
 
 def read_tum(p):
     rows = [[float(x) for x in l.split()[:8]] for l in open(p) if l.strip() and not l.startswith('#')]
@@ -37,12 +39,7 @@ def main():
     if len(pairs) < 3:
         sys.exit("fewer than 3 keyframes matched the ground truth by timestamp")
     src = np.array([kf[i, 1:4] for i, _ in pairs]); dst = np.array([gt[k, 1:4] for _, k in pairs])
-    s0, d0 = src - src.mean(0), dst - dst.mean(0)
-    u, sig, vt = np.linalg.svd(d0.T @ s0 / len(src))
-    flip = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        flip[2, 2] = -1
-    scale = np.trace(np.diag(sig) @ flip) / (s0 ** 2).sum(1).mean()
+    scale, _, _ = umeyama(src, dst)
     rel, base = [], []
     for (i0, k0), (i1, k1) in zip(pairs, pairs[1:]):
         r_est = rot(kf[i0, 4:8]).T @ rot(kf[i1, 4:8])
