@@ -149,6 +149,9 @@ fn the_real_kitti_clips_are_tracked() {
     );
 }
 
+/// ORB-SLAM's feature count for KITTI, which a user coming from it may well keep.
+const ORB_SLAM_KITTI_FEATURES: &str = "[orb]\nn_features = 2000\n";
+
 /// The highway clip with ORB-SLAM's KITTI feature count (2000). The map made at frame 9
 /// collapses in the real 29 deg curve of frames 13-24: its new points sit at 0.32 of the depth
 /// of the older points beside them, so the turn does not excuse the depth it lost, and it is
@@ -170,7 +173,7 @@ fn the_highway_with_2000_features_reports_no_collapsed_pose() {
         },
         data.join("real").join("kitti01_51").to_str().unwrap(),
         true,
-        Some("[orb]\nn_features = 2000\n"),
+        Some(ORB_SLAM_KITTI_FEATURES),
     );
 }
 
@@ -190,7 +193,7 @@ fn the_orbit_with_2000_features_starts_from_the_right_motion() {
         },
         "synthetic",
         true,
-        Some("[orb]\nn_features = 2000\n"),
+        Some(ORB_SLAM_KITTI_FEATURES),
     );
 }
 

@@ -34,7 +34,8 @@ pub struct CollapseEvidence {
     /// Inliers the median depth was taken over.
     pub inliers: usize,
     /// Depth of the inliers made in the window over that of the older ones in the same part
-    /// of the view (median over image cells holding both), when enough cells do.
+    /// of the view (median over image cells holding both), when enough cells do; weighed
+    /// only for a collapse the map's turn would excuse.
     pub young_over_old: Option<f64>,
 }
 
@@ -152,8 +153,16 @@ impl CollapseMonitor {
         let &(_, _, start, from_frame, from_timestamp) = it.next()?;
         let (path, turn) = it.fold((0.0, 0.0), |(p, t), &(b, r, ..)| (p + b, t + r));
         let inliers = self.depths.len();
-        let first_serial = self.serials.front().copied().unwrap_or(0);
-        let young_over_old = self.young_over_old_depth(map, f, first_serial);
+        let collapsed =
+            median < self.depth_shrink * start && path < self.path_ratio * (start - median);
+        let turned = turn >= self.max_turn_rad;
+        // Only a turn's excuse needs the new points weighed against the old.
+        let young_over_old = if collapsed && turned {
+            let first_serial = self.serials.front().copied().unwrap_or(0);
+            self.young_over_old_depth(map, f, first_serial)
+        } else {
+            None
+        };
         let evidence = CollapseEvidence {
             from_frame,
             from_timestamp,
@@ -167,12 +176,8 @@ impl CollapseMonitor {
         tracing::trace!(%evidence, "collapse monitor");
         // A turn excuses the depth lost (the camera looks at nearer things), unless the
         // points made in the window sit much nearer than the older ones beside them.
-        let turn_excuses =
-            turn >= self.max_turn_rad && young_over_old.is_none_or(|r| r >= self.young_over_old);
-        (median < self.depth_shrink * start
-            && path < self.path_ratio * (start - median)
-            && !turn_excuses)
-            .then_some(evidence)
+        let turn_excuses = turned && young_over_old.is_none_or(|r| r >= self.young_over_old);
+        (collapsed && !turn_excuses).then_some(evidence)
     }
 }
 
