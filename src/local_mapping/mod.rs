@@ -370,6 +370,23 @@ impl LocalMapper {
                 self.obs_src.push((mp, okf));
             }
         }
+        let poses = &self.ba_poses;
+        if fixed.iter().filter(|&&f| f).count() < 2 {
+            let root = (0..poses.len()).find(|&i| fixed[i]).map(|i| poses[i]);
+            let second = (0..poses.len())
+                .filter(|&i| !fixed[i])
+                .min_by_key(|&i| map.keyframe(poses[i]).map_or(u64::MAX, |k| k.serial))
+                .map(|i| poses[i]);
+            let par = match (root, second) {
+                (Some(a), Some(b)) => pair_parallax_deg(map, a, b),
+                _ => None,
+            };
+            if par.is_some_and(|p| p < WEAK_PAIR_PARALLAX_DEG) {
+                fix_scale_gauge(&mut fixed, |i| {
+                    map.keyframe(poses[i]).map_or(u64::MAX, |k| k.serial)
+                });
+            }
+        }
         p.poses = self
             .ba_poses
             .iter()
@@ -464,6 +481,54 @@ impl LocalMapper {
     }
 }
 
+/// Monocular BA is free up to a similarity, so one fixed keyframe leaves the scale free. In a
+/// young map every keyframe is local and only the first is fixed; there local BA shrank the
+/// initial pair's baseline while the depths stayed (desk with 1750 features: 0.016 -> 0.008
+/// over 5 keyframes), its points' rays closed below the kept parallax, and the map starved.
+/// So while fewer than two poses are fixed, the oldest free ones (by `serial`) are fixed too:
+/// in a young map the initial pair's second keyframe.
+fn fix_scale_gauge(fixed: &mut [bool], serial: impl Fn(usize) -> u64) {
+    while fixed.iter().filter(|&&f| f).count() < 2 {
+        let Some(i) = (0..fixed.len())
+            .filter(|&i| !fixed[i])
+            .min_by_key(|&i| serial(i))
+        else {
+            return;
+        };
+        fixed[i] = true;
+    }
+}
+
+/// Median parallax of the points the two oldest keyframes of a young map share below which
+/// local BA keeps the second one fixed (see [`fix_scale_gauge`]): three times the
+/// initialisation's 1 deg minimum. desk's starts measure 0.8-1.7 deg, the highway's 0.9-1.2,
+/// the blackout's new map 2.4; a fast orbit (9 deg per frame) 6.7, where its first keyframes
+/// need BA to refine them.
+const WEAK_PAIR_PARALLAX_DEG: f64 = 3.0;
+
+/// Median parallax (degrees) of the points keyframes `a` and `b` both observe.
+fn pair_parallax_deg(map: &Map, a: KeyFrameId, b: KeyFrameId) -> Option<f64> {
+    let (ka, kb) = (map.keyframe(a)?, map.keyframe(b)?);
+    let (ca, cb) = (ka.t_cw.center(), kb.t_cw.center());
+    let mut angles: Vec<f64> = ka
+        .observed()
+        .filter_map(|(_, p)| map.point(p))
+        .filter(|p| p.observations.iter().any(|&(k, _)| k == b))
+        .map(|p| {
+            let (ra, rb) = (p.position - ca, p.position - cb);
+            (ra.dot(&rb) / (ra.norm() * rb.norm()))
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        })
+        .collect();
+    if angles.is_empty() {
+        return None;
+    }
+    let mid = angles.len() / 2;
+    Some(*angles.select_nth_unstable_by(mid, |x, y| x.total_cmp(y)).1)
+}
+
 /// Median scene depth of a keyframe's points (for scale normalisation and baselines).
 pub fn median_depth(map: &Map, kf: KeyFrameId) -> Option<f64> {
     let k = map.keyframe(kf)?;
@@ -515,4 +580,35 @@ fn depth_unobservable(map: &Map, mp: crate::map::MapPointId) -> bool {
 /// Keyframes of the atlas map `kf` belongs to (a new map is young however big the others are).
 fn keyframes_in_map_of(map: &Map, kf: KeyFrameId) -> usize {
     map.keyframe(kf).map_or(0, |k| map.n_keyframes_of(k.map_id))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fix_scale_gauge;
+
+    #[test]
+    fn a_young_map_fixes_its_two_oldest_keyframes() {
+        // The root (serial 0) fixed, the initial pair's second (1) and two later ones free.
+        let serials = [3, 0, 1, 2];
+        let mut fixed = [false, true, false, false];
+        fix_scale_gauge(&mut fixed, |i| serials[i]);
+        assert_eq!(fixed, [false, true, true, false]);
+    }
+
+    #[test]
+    fn two_fixed_keyframes_are_left_as_they_are() {
+        let mut fixed = [false, true, false, true];
+        fix_scale_gauge(&mut fixed, |i| i as u64);
+        assert_eq!(fixed, [false, true, false, true]);
+    }
+
+    #[test]
+    fn with_none_fixed_the_two_oldest_are_and_a_lone_pose_is_fixed_alone() {
+        let mut fixed = [false; 3];
+        fix_scale_gauge(&mut fixed, |i| [5, 9, 7][i]);
+        assert_eq!(fixed, [true, false, true]);
+        let mut one = [false];
+        fix_scale_gauge(&mut one, |_| 0);
+        assert_eq!(one, [true]);
+    }
 }
