@@ -371,13 +371,14 @@ impl LocalMapper {
             }
         }
         let poses = &self.ba_poses;
+        // A young map (one pose fixed: its first keyframe) that started at low parallax.
         if fixed.iter().filter(|&&f| f).count() < 2 {
-            let root = (0..poses.len()).find(|&i| fixed[i]).map(|i| poses[i]);
+            let first = (0..poses.len()).find(|&i| fixed[i]).map(|i| poses[i]);
             let second = (0..poses.len())
                 .filter(|&i| !fixed[i])
                 .min_by_key(|&i| map.keyframe(poses[i]).map_or(u64::MAX, |k| k.serial))
                 .map(|i| poses[i]);
-            let par = match (root, second) {
+            let par = match (first, second) {
                 (Some(a), Some(b)) => pair_parallax_deg(map, a, b),
                 _ => None,
             };
