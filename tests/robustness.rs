@@ -166,7 +166,7 @@ fn the_highway_with_2000_features_reports_no_collapsed_pose() {
     check_source_configured(
         &Bar {
             scene: "kitti01_51, 2000 features",
-            // The map that lasts starts at frame 29 (backfilled to 25).
+            // Since 3b49369 the map that lasts starts at frame 5 (before: 29, backfilled to 25).
             first_pose: 30,
             min_tracked: 0.97,
             max_kf_ate_of_path: 0.02,
@@ -182,7 +182,8 @@ fn the_highway_with_2000_features_reports_no_collapsed_pose() {
 /// was local: the initial pair's baseline halved over 5 keyframes, the points' rays closed
 /// below the kept parallax (133 of 549 erased at the first BA), keyframes made every frame
 /// triangulated 3-14 points, and the map was reported `Ok` up to 6.7% of the path off until it
-/// was lost at frame 136. With two keyframes fixed the first map lasts.
+/// was lost at frame 136. With the pair's second keyframe fixed too (a start under 3 deg of
+/// median parallax) the first map lasts.
 #[test]
 fn desk_with_1750_features_keeps_its_first_map() {
     let Some(data) = common::shared_data() else {
