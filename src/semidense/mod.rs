@@ -7,6 +7,7 @@
 //! by offline densification); [`SemiDenseMapper`] drives them from the SLAM map with the
 //! keyframe delay, keeps the per-keyframe results and produces the cloud with current poses.
 
+mod depth_stage;
 mod epipolar;
 mod fusion;
 mod gradients;

@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
-use super::epipolar::{Hypothesis, Intrinsics, SearchParams, StereoPair};
-use super::fusion::fuse;
+use super::depth_stage::{mark_support, DepthContext, RowPass, DEPTH_BAND_ROWS};
+use super::epipolar::{Intrinsics, SearchParams, StereoPair};
 use super::gradients::{contrast_scale, GradientImage};
 use super::intra::check_smooth_grow_row;
 use super::patch::fails_patch_check;
@@ -42,6 +42,9 @@ pub struct StageTimes {
     /// lambda_G it left unsearched (nothing around them in the earlier map).
     pub seeded: u64,
     pub seed_skipped: u64,
+    /// Pixels with G > lambda_G of odd rows not searched: nothing above or below them was
+    /// fused (`row_support_gate`).
+    pub support_skipped: u64,
     /// Pixels per stage: searches stopped before the last neighbour (no estimate could
     /// result: too few neighbours left, or early rejection), pixels fused (III-C), fused
     /// pixels the intra-keyframe check kept, and pixels it grew (III-D).
@@ -71,6 +74,11 @@ pub struct KeyframeReconstructor {
     lambda_n: usize,
     consensus_window: bool,
     early_reject_after: usize,
+    /// `[semidense] row_support_gate`: odd rows searched only beside fused pixels.
+    row_support_gate: bool,
+    /// Per pixel of an even row: whether it or a pixel beside it in its row was fused
+    /// (the odd rows' gate, built between the two passes).
+    support: Vec<bool>,
     /// `[semidense] min_patch_zncc` (0 = off).
     min_patch_zncc: f32,
     contrast_reference: f64,
@@ -125,6 +133,8 @@ impl KeyframeReconstructor {
             lambda_n: config.lambda_n,
             consensus_window: config.consensus_window,
             early_reject_after: config.early_reject_after,
+            row_support_gate: config.row_support_gate,
+            support: vec![false; width * height],
             min_patch_zncc: config.min_patch_zncc as f32,
             contrast_reference: config.contrast_reference,
             cache: (0..2 * n + 2)
@@ -170,6 +180,7 @@ impl KeyframeReconstructor {
         self.pairs = Vec::new();
         (self.raw_rho, self.raw_s2, self.rho, self.s2) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        self.support = Vec::new();
         self.pool = None;
     }
 
@@ -320,6 +331,7 @@ impl KeyframeReconstructor {
             samples: AtomicU64::new(0),
             seeded: AtomicU64::new(0),
             seed_skipped: AtomicU64::new(0),
+            support_skipped: AtomicU64::new(0),
             abandoned: AtomicU64::new(0),
             fused: AtomicU64::new(0),
         };
@@ -327,18 +339,29 @@ impl KeyframeReconstructor {
         // the neighbours (their transposed words), so a block's pixels reuse the same few
         // cached columns, which a full image row (640 columns x 7 neighbours) would evict.
         let gate = self.gate.as_ref();
-        let depth_bands = |band: (usize, (&mut [f32], &mut [f32]))| {
-            let (b, (r, s)) = band;
-            ctx.band(b * DEPTH_BAND_ROWS, w, h, r, s, gate);
+        let passes: &[RowPass] = if self.row_support_gate {
+            &[RowPass::Even, RowPass::OddSupported]
+        } else {
+            &[RowPass::All]
         };
-        run_rows(
-            self.pool.as_ref(),
-            None,
-            &mut self.raw_rho,
-            &mut self.raw_s2,
-            w * DEPTH_BAND_ROWS,
-            depth_bands,
-        );
+        for &pass in passes {
+            if pass == RowPass::OddSupported {
+                mark_support(&self.raw_s2, w, &mut self.support);
+            }
+            let support = &self.support[..];
+            let depth_bands = |band: (usize, (&mut [f32], &mut [f32]))| {
+                let (b, (r, s)) = band;
+                ctx.band(b * DEPTH_BAND_ROWS, (w, h), (r, s), pass, support, gate);
+            };
+            run_rows(
+                self.pool.as_ref(),
+                None,
+                &mut self.raw_rho,
+                &mut self.raw_s2,
+                w * DEPTH_BAND_ROWS,
+                depth_bands,
+            );
+        }
         let t1 = Instant::now();
         let (raw_rho, raw_s2) = (&self.raw_rho, &self.raw_s2);
         let lambda_g = params.lambda_g;
@@ -405,6 +428,7 @@ impl KeyframeReconstructor {
             samples: ctx.samples.load(Ordering::Relaxed),
             seeded: ctx.seeded.load(Ordering::Relaxed),
             seed_skipped: ctx.seed_skipped.load(Ordering::Relaxed),
+            support_skipped: ctx.support_skipped.load(Ordering::Relaxed),
             abandoned: ctx.abandoned.load(Ordering::Relaxed),
             fused: ctx.fused.load(Ordering::Relaxed),
             intra_kept,
@@ -460,234 +484,5 @@ fn run_rows<F>(
                 .for_each(f)
         }),
         None => a.chunks_mut(w).zip(b.chunks_mut(w)).enumerate().for_each(f),
-    }
-}
-
-/// What the depth stage reads, shared by the row workers.
-struct DepthContext<'a> {
-    params: SearchParams,
-    lambda_n: usize,
-    consensus_window: bool,
-    early_reject_after: usize,
-    reference: &'a GradientImage,
-    neighbours: &'a [&'a GradientImage],
-    pairs: &'a [StereoPair],
-    rho_range: (f64, f64),
-    /// Per-region ranges (inside `rho_range`), when on.
-    prior: Option<&'a RegionalPrior>,
-    seed: Option<&'a RegionalPrior>,
-    pixels: AtomicU64,
-    samples: AtomicU64,
-    seeded: AtomicU64,
-    seed_skipped: AtomicU64,
-    abandoned: AtomicU64,
-    fused: AtomicU64,
-}
-
-/// Rows per task of the depth stage, and columns per block within it.
-const DEPTH_BAND_ROWS: usize = 8;
-const DEPTH_BLOCK_COLUMNS: usize = 16;
-
-impl DepthContext<'_> {
-    /// Rows `y0..` of the output (`out_*` hold whole rows); each block of columns first
-    /// waits for `gate` (tracking busy).
-    fn band(
-        &self,
-        y0: usize,
-        w: usize,
-        h: usize,
-        out_rho: &mut [f32],
-        out_s2: &mut [f32],
-        gate: Option<&crate::threads::ForegroundGate>,
-    ) {
-        out_rho.fill(0.0);
-        out_s2.fill(0.0);
-        let rows = out_rho.len() / w.max(1);
-        let (ya, yb) = (y0.max(2), (y0 + rows).min(h.saturating_sub(2)));
-        let mut counts = RowCounts::default();
-        let mut x0 = 2;
-        while x0 + 2 < w {
-            if let Some(g) = gate {
-                g.wait();
-            }
-            let x1 = (x0 + DEPTH_BLOCK_COLUMNS).min(w - 2);
-            for y in ya..yb {
-                let o = (y - y0) * w;
-                self.pixels_of_row(
-                    y,
-                    x0..x1,
-                    w,
-                    &mut out_rho[o..o + w],
-                    &mut out_s2[o..o + w],
-                    &mut counts,
-                );
-            }
-            x0 = x1;
-        }
-        self.pixels.fetch_add(counts.pixels, Ordering::Relaxed);
-        self.samples.fetch_add(counts.samples, Ordering::Relaxed);
-        self.seeded.fetch_add(counts.seeded, Ordering::Relaxed);
-        self.seed_skipped
-            .fetch_add(counts.seed_skipped, Ordering::Relaxed);
-        self.abandoned
-            .fetch_add(counts.abandoned, Ordering::Relaxed);
-        self.fused.fetch_add(counts.fused, Ordering::Relaxed);
-    }
-
-    /// Pixels `xs` of row `y` (at least two pixels inside the image).
-    fn pixels_of_row(
-        &self,
-        y: usize,
-        xs: std::ops::Range<usize>,
-        w: usize,
-        out_rho: &mut [f32],
-        out_s2: &mut [f32],
-        counts: &mut RowCounts,
-    ) {
-        let samples = &mut counts.samples;
-        let codes = &self.reference.packed[y * w..(y + 1) * w];
-        let mut hyps = [Hypothesis::default(); MAX_NEIGHBOURS];
-        for x in xs {
-            // Pixels with G > lambda_G carry a non-zero code.
-            if codes[x] & 255 == 0 {
-                continue;
-            }
-            // A seed narrows the samples visited, not the segment: its parallax check and
-            // sub-pixel step stay those of the prior range (a few-percent window on a short
-            // baseline is under a pixel of line). Where it has nothing, nothing is searched.
-            let mut window = None;
-            if let Some(seed) = self.seed {
-                window = seed.narrowed_range(x, y);
-                if window.is_none() {
-                    counts.seed_skipped += 1;
-                    continue;
-                }
-                counts.seeded += 1;
-            }
-            let p = &self.reference.at(x, y);
-            counts.pixels += 1;
-            let rho_range = self.prior.map_or(self.rho_range, |p| p.range(x, y));
-            let mut agreed = false;
-            let mut n = 0;
-            let total = self.pairs.len();
-            for (j, (pair, img)) in self.pairs.iter().zip(self.neighbours).enumerate() {
-                if self.gives_up(j, total, &hyps[..n]) {
-                    counts.abandoned += 1;
-                    break;
-                }
-                if let Some(hy) = pair.search_within(
-                    &self.params,
-                    x as f64,
-                    y as f64,
-                    p,
-                    rho_range,
-                    window,
-                    img,
-                    samples,
-                ) {
-                    hyps[n] = hy;
-                    n += 1;
-                    if self.consensus_window && !agreed {
-                        if let Some(w) = consensus_window(&hyps[..n]) {
-                            (window, agreed) = (Some(w), true);
-                        }
-                    }
-                }
-            }
-            if let Some((r, s2)) = fuse(&hyps[..n], self.lambda_n) {
-                out_rho[x] = r;
-                out_s2[x] = s2;
-                counts.fused += 1;
-            }
-        }
-    }
-}
-
-/// A band's counters, added to the context's once per band.
-#[derive(Default)]
-struct RowCounts {
-    pixels: u64,
-    samples: u64,
-    seeded: u64,
-    seed_skipped: u64,
-    abandoned: u64,
-    fused: u64,
-}
-
-impl DepthContext<'_> {
-    /// Whether searching neighbour `j` (of `total`) on, with hypotheses `h` so far, cannot
-    /// give the pixel an estimate: fewer than lambda_N hypotheses remain possible (fusion
-    /// would reject it), or it is ambiguous at the early-rejection point (config
-    /// `early_reject_after`: no two hypotheses agree), or will be (no pair can form by then).
-    fn gives_up(&self, j: usize, total: usize, h: &[Hypothesis]) -> bool {
-        let n = h.len();
-        if n + (total - j) < self.lambda_n {
-            return true;
-        }
-        let at = self.early_reject_after;
-        if at == 0 || at > total {
-            return false;
-        }
-        (j < at && n + (at - j) < 2) || (j == at && !has_compatible_pair(h))
-    }
-}
-
-/// Whether two of the hypotheses pass eq. 10's compatibility test.
-fn has_compatible_pair(h: &[Hypothesis]) -> bool {
-    h.iter().enumerate().any(|(i, a)| {
-        h[i + 1..]
-            .iter()
-            .any(|b| super::fusion::compatible(a.rho, a.sigma * a.sigma, b.rho, b.sigma * b.sigma))
-    })
-}
-
-/// The inverse depths a further hypothesis must fall in to be compatible (eq. 10) with the
-/// newest hypothesis and one earlier hypothesis it is compatible with: rho +- sqrt(5.99) sigma
-/// of each of the two (a wider new hypothesis only narrows the test). `None` until such a
-/// pair exists.
-fn consensus_window(h: &[Hypothesis]) -> Option<(f64, f64)> {
-    let (last, earlier) = h.split_last()?;
-    let k = super::fusion::CHI2_2DOF_95.sqrt();
-    let partner = earlier.iter().find(|e| {
-        super::fusion::compatible(e.rho, e.sigma * e.sigma, last.rho, last.sigma * last.sigma)
-    })?;
-    let lo = (last.rho - k * last.sigma).min(partner.rho - k * partner.sigma);
-    let hi = (last.rho + k * last.sigma).max(partner.rho + k * partner.sigma);
-    Some((lo as f64, hi as f64))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn h(rho: f32, sigma: f32) -> Hypothesis {
-        Hypothesis { rho, sigma }
-    }
-
-    #[test]
-    fn a_compatible_pair_is_found_among_incompatible_hypotheses() {
-        assert!(!has_compatible_pair(&[]));
-        assert!(!has_compatible_pair(&[h(1.0, 0.01)]));
-        assert!(!has_compatible_pair(&[
-            h(1.0, 0.01),
-            h(1.5, 0.01),
-            h(2.0, 0.01)
-        ]));
-        assert!(has_compatible_pair(&[
-            h(1.0, 0.01),
-            h(1.5, 0.01),
-            h(1.505, 0.01)
-        ]));
-    }
-
-    #[test]
-    fn consensus_window_needs_a_compatible_pair_and_covers_both() {
-        assert_eq!(consensus_window(&[h(1.0, 0.01)]), None);
-        // Incompatible: 0.5 apart with sigmas 0.01.
-        assert_eq!(consensus_window(&[h(1.0, 0.01), h(1.5, 0.01)]), None);
-        let (lo, hi) = consensus_window(&[h(1.5, 0.01), h(1.0, 0.01), h(1.01, 0.02)]).unwrap();
-        let k = super::super::fusion::CHI2_2DOF_95.sqrt() as f64;
-        assert!((lo - (1.01 - k * 0.02)).abs() < 1e-6, "{lo}");
-        assert!((hi - (1.01 + k * 0.02)).abs() < 1e-6, "{hi}");
     }
 }

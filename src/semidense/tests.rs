@@ -148,6 +148,16 @@ fn keyframe_stages_exposed(
     exposure: f32,
     compensate: bool,
 ) -> (Stats, Stats) {
+    let (fused, intra, _) = keyframe_run(cfg, exposure, compensate);
+    (fused, intra)
+}
+
+/// [`keyframe_stages_exposed`] with the reconstruction's stage counts.
+fn keyframe_run(
+    cfg: &SemiDenseConfig,
+    exposure: f32,
+    compensate: bool,
+) -> (Stats, Stats, super::reconstructor::StageTimes) {
     let seq = sequence();
     let k = intrinsics(&seq.config);
     let (w, h) = (seq.config.width as usize, seq.config.height as usize);
@@ -211,7 +221,7 @@ fn keyframe_stages_exposed(
         s2[p.idx as usize] = p.sigma * p.sigma;
     }
     let intra = stats("intra", &relative_errors(&rho, &s2, &r.depth));
-    (fused, intra)
+    (fused, intra, times)
 }
 
 /// The paper's search (all N neighbours of every pixel): the fused and intra-checked maps
@@ -277,6 +287,55 @@ fn early_rejection_keeps_points_and_accuracy() {
     }
 }
 
+/// The row support gate leaves the odd-row pixels with nothing fused above or below them
+/// unsearched (a fifth of this keyframe's pixels) and keeps the points and accuracy of the
+/// search of every pixel: such pixels rarely survive the intra-keyframe check.
+#[test]
+fn row_support_gate_skips_unsupported_pixels_and_keeps_points_and_accuracy() {
+    assert!(SemiDenseConfig::default().row_support_gate);
+    let every_row = SemiDenseConfig {
+        row_support_gate: false,
+        ..SemiDenseConfig::default()
+    };
+    let (_, full, t_full) = keyframe_run(&every_row, 1.0, false);
+    let (_, gated, t_gated) = keyframe_run(&SemiDenseConfig::default(), 1.0, false);
+    assert_eq!(t_full.support_skipped, 0);
+    assert_eq!(
+        t_gated.searched_pixels + t_gated.support_skipped,
+        t_full.searched_pixels
+    );
+    assert!(
+        (t_gated.searched_pixels as f64) < 0.9 * t_full.searched_pixels as f64,
+        "{} of {} pixels searched",
+        t_gated.searched_pixels,
+        t_full.searched_pixels
+    );
+    assert!(
+        gated.0 as f64 > 0.95 * full.0 as f64,
+        "{} points (every row: {})",
+        gated.0,
+        full.0
+    );
+    assert!(
+        gated.1 <= full.1 + 0.0005,
+        "median {} vs {}",
+        gated.1,
+        full.1
+    );
+    assert!(
+        gated.2 >= full.2 - 0.005,
+        "within 2%: {} vs {}",
+        gated.2,
+        full.2
+    );
+    assert!(
+        gated.3 <= full.3 + 0.002,
+        "beyond 10%: {} vs {}",
+        gated.3,
+        full.3
+    );
+}
+
 #[test]
 fn median_rotation_of_angles_straddling_180_degrees_is_near_180() {
     let mut scratch = Vec::with_capacity(16);
@@ -307,6 +366,7 @@ fn paper_mode_switches_every_addition_off_and_says_so() {
         .collect();
     for n in [
         "early_reject_after",
+        "row_support_gate",
         "min_baseline_ratio",
         "max_similarity_error",
         "photometric_gain",
@@ -330,6 +390,7 @@ fn paper_mode_switches_every_addition_off_and_says_so() {
     );
     let f = paper.in_force();
     assert_eq!(f.early_reject_after, 0);
+    assert!(!f.row_support_gate);
     assert_eq!(f.min_baseline_ratio, 0.0);
     assert!(f.max_similarity_error.is_infinite());
     assert!(!f.consensus_window);

@@ -103,6 +103,9 @@ pub struct PixelCounts {
     /// nothing around them (not in `searched`).
     pub seeded: u64,
     pub seed_skipped: u64,
+    /// Pixels with G > lambda_G of odd rows left unsearched: no fused pixel above or below
+    /// them (`row_support_gate`; not in `searched`).
+    pub support_skipped: u64,
     /// ... whose search stopped early (fewer than lambda_N neighbours left, or early
     /// rejection: no compatible pair after `early_reject_after` neighbours).
     pub search_abandoned: u64,
@@ -170,6 +173,7 @@ impl std::ops::AddAssign<&PixelCounts> for PixelCounts {
         self.searched += b.searched;
         self.seeded += b.seeded;
         self.seed_skipped += b.seed_skipped;
+        self.support_skipped += b.support_skipped;
         self.search_abandoned += b.search_abandoned;
         self.fused += b.fused;
         self.intra_kept += b.intra_kept;

@@ -211,6 +211,7 @@ impl Workspace {
             searched: times.searched_pixels,
             seeded: times.seeded,
             seed_skipped: times.seed_skipped,
+            support_skipped: times.support_skipped,
             search_abandoned: times.abandoned,
             fused: times.fused,
             intra_kept: times.intra_kept,
