@@ -371,18 +371,25 @@ impl LocalMapper {
             }
         }
         let poses = &self.ba_poses;
-        // A young map (one pose fixed: its first keyframe) that started at low parallax.
+        // A young map (one pose fixed: its first keyframe) that started at low parallax and in
+        // which no keyframe yet sees the first one's points from a wide angle.
         if fixed.iter().filter(|&&f| f).count() < 2 {
-            let first = (0..poses.len()).find(|&i| fixed[i]).map(|i| poses[i]);
+            let first = (0..poses.len()).find(|&i| fixed[i]);
             let second = (0..poses.len())
                 .filter(|&i| !fixed[i])
-                .min_by_key(|&i| map.keyframe(poses[i]).map_or(u64::MAX, |k| k.serial))
-                .map(|i| poses[i]);
-            let par = match (first, second) {
-                (Some(a), Some(b)) => pair_parallax_deg(map, a, b),
-                _ => None,
+                .min_by_key(|&i| map.keyframe(poses[i]).map_or(u64::MAX, |k| k.serial));
+            let weak_start = match (first, second) {
+                (Some(a), Some(b)) => pair_parallax_deg(map, poses[a], poses[b])
+                    .is_some_and(|p| p < WEAK_PAIR_PARALLAX_DEG),
+                _ => false,
             };
-            if par.is_some_and(|p| p < WEAK_PAIR_PARALLAX_DEG) {
+            let widest = first.and_then(|f| {
+                (0..poses.len())
+                    .filter(|&i| !fixed[i])
+                    .filter_map(|i| pair_parallax_deg(map, poses[f], poses[i]))
+                    .max_by(|a, b| a.total_cmp(b))
+            });
+            if weak_start && widest.is_some_and(|p| p < WIDE_KEYFRAME_PARALLAX_DEG) {
                 fix_scale_gauge(&mut fixed, |i| {
                     map.keyframe(poses[i]).map_or(u64::MAX, |k| k.serial)
                 });
@@ -486,8 +493,12 @@ impl LocalMapper {
 /// young map every keyframe is local and only the first is fixed; there local BA shrank the
 /// initial pair's baseline while the depths stayed (desk with 1750 features: 0.016 -> 0.008
 /// over 5 keyframes), its points' rays closed below the kept parallax, and the map starved.
-/// So while fewer than two poses are fixed, the oldest free ones (by `serial`) are fixed too:
-/// in a young map the initial pair's second keyframe.
+/// So while fewer than two poses are fixed, the initial pair's points have a median parallax
+/// under [`WEAK_PAIR_PARALLAX_DEG`] and no free keyframe sees the first one's points at
+/// [`WIDE_KEYFRAME_PARALLAX_DEG`], the oldest free ones (by `serial`) are fixed too: in a
+/// young map the initial pair's second keyframe. A wide keyframe releases it: on desk every
+/// keyframe stays in the local window for most of the run, and keeping the second keyframe
+/// fixed all that time doubled the cloud's median depth error (0.08 -> 0.16%).
 fn fix_scale_gauge(fixed: &mut [bool], serial: impl Fn(usize) -> u64) {
     while fixed.iter().filter(|&&f| f).count() < 2 {
         let Some(i) = (0..fixed.len())
@@ -506,6 +517,15 @@ fn fix_scale_gauge(fixed: &mut [bool], serial: impl Fn(usize) -> u64) {
 /// the blackout's new map 2.4; a fast orbit (9 deg per frame) 6.7, where its first keyframes
 /// need BA to refine them.
 const WEAK_PAIR_PARALLAX_DEG: f64 = 3.0;
+
+/// Median parallax of the points the first keyframe shares with a free keyframe at which that
+/// keyframe carries the scale on its own and the second is released (see
+/// [`fix_scale_gauge`]). On desk the widest keyframe reaches 3 deg at the tenth local BA and
+/// 10 deg at the twenty-fourth of about fifty that include the first keyframe. Released at 3
+/// deg, the highway with 1750 features lost its scale again (4% of the path, 3 wrong `Ok`
+/// frames); at 6 deg the outward loop's ATE tripled; never released, desk's cloud had twice
+/// the median depth error (0.16%).
+const WIDE_KEYFRAME_PARALLAX_DEG: f64 = 10.0;
 
 /// Median parallax (degrees) of the points keyframes `a` and `b` both observe.
 fn pair_parallax_deg(map: &Map, a: KeyFrameId, b: KeyFrameId) -> Option<f64> {
