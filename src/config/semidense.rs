@@ -72,7 +72,10 @@ pub struct SemiDenseConfig {
     /// (columns x-1..=x+1 of rows y-1 and y+1) was fused. An unsupported pixel is rarely
     /// kept by the intra-keyframe check (III-D needs neighbours that agree): on desk half
     /// the odd-row pixels are unsupported and they hold about 1% of the odd rows' points the
-    /// check keeps, while their searches are a quarter of the depth stage.
+    /// check keeps, while their searches are a quarter of the depth stage. Off by default: it
+    /// makes the depth stage about 10% faster but costs 2-6% of the points, and posters and
+    /// low-light then keep 9.7-9.8k points per keyframe online, under issue 31's 10k
+    /// (docs/PERFORMANCE.md); on a robot short of CPU turn it on.
     pub row_support_gate: bool,
     /// Regional prior (not in the paper, see `semidense::prior`): cell side in pixels of the
     /// grid whose cells search only the inverse depths of the ORB map points around them
@@ -153,7 +156,7 @@ impl Default for SemiDenseConfig {
             max_similarity_error: 5.99,
             consensus_window: false,
             early_reject_after: 3,
-            row_support_gate: true,
+            row_support_gate: false,
             prior_cell_px: 32,
             min_patch_zncc: 0.5,
             prior_margin: 0.25,

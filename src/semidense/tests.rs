@@ -287,18 +287,18 @@ fn early_rejection_keeps_points_and_accuracy() {
     }
 }
 
-/// The row support gate leaves the odd-row pixels with nothing fused above or below them
+/// The row support gate (off by default) leaves the odd-row pixels with nothing fused above or below them
 /// unsearched (a fifth of this keyframe's pixels) and keeps the points and accuracy of the
 /// search of every pixel: such pixels rarely survive the intra-keyframe check.
 #[test]
 fn row_support_gate_skips_unsupported_pixels_and_keeps_points_and_accuracy() {
-    assert!(SemiDenseConfig::default().row_support_gate);
-    let every_row = SemiDenseConfig {
-        row_support_gate: false,
+    assert!(!SemiDenseConfig::default().row_support_gate);
+    let gate = SemiDenseConfig {
+        row_support_gate: true,
         ..SemiDenseConfig::default()
     };
-    let (_, full, t_full) = keyframe_run(&every_row, 1.0, false);
-    let (_, gated, t_gated) = keyframe_run(&SemiDenseConfig::default(), 1.0, false);
+    let (_, full, t_full) = keyframe_run(&SemiDenseConfig::default(), 1.0, false);
+    let (_, gated, t_gated) = keyframe_run(&gate, 1.0, false);
     assert_eq!(t_full.support_skipped, 0);
     assert_eq!(
         t_gated.searched_pixels + t_gated.support_skipped,
@@ -366,7 +366,6 @@ fn paper_mode_switches_every_addition_off_and_says_so() {
         .collect();
     for n in [
         "early_reject_after",
-        "row_support_gate",
         "min_baseline_ratio",
         "max_similarity_error",
         "photometric_gain",
@@ -377,9 +376,18 @@ fn paper_mode_switches_every_addition_off_and_says_so() {
             "{n} not reported in {names:?}"
         );
     }
+    let gated = SemiDenseConfig {
+        row_support_gate: true,
+        ..SemiDenseConfig::default()
+    };
+    assert!(gated
+        .non_paper_settings()
+        .iter()
+        .any(|(n, _)| n == "row_support_gate"));
     let paper = SemiDenseConfig {
         mode: SemiDenseMode::Paper,
         consensus_window: true,
+        row_support_gate: true,
         prior_cell_px: 16,
         ..SemiDenseConfig::default()
     };
