@@ -373,26 +373,28 @@ impl LocalMapper {
         let poses = &self.ba_poses;
         // A young map (one pose fixed: its first keyframe) that started at low parallax and in
         // which no keyframe yet sees the first one's points from a wide angle.
-        if fixed.iter().filter(|&&f| f).count() < 2 {
-            let first = (0..poses.len()).find(|&i| fixed[i]);
-            let second = (0..poses.len())
-                .filter(|&i| !fixed[i])
-                .min_by_key(|&i| map.keyframe(poses[i]).map_or(u64::MAX, |k| k.serial));
-            let weak_start = match (first, second) {
-                (Some(a), Some(b)) => pair_parallax_deg(map, poses[a], poses[b])
-                    .is_some_and(|p| p < WEAK_PAIR_PARALLAX_DEG),
-                _ => false,
-            };
-            let widest = first.and_then(|f| {
-                (0..poses.len())
-                    .filter(|&i| !fixed[i])
-                    .filter_map(|i| pair_parallax_deg(map, poses[f], poses[i]))
-                    .max_by(|a, b| a.total_cmp(b))
-            });
+        if let Some(first) = (fixed.iter().filter(|&&f| f).count() < 2)
+            .then(|| (0..poses.len()).find(|&i| fixed[i]))
+            .flatten()
+        {
+            let serial = |i: usize| map.keyframe(poses[i]).map_or(u64::MAX, |k| k.serial);
+            // Each free keyframe's parallax with the first: the oldest one's is the initial
+            // pair's, the largest the widest.
+            let (mut second, mut widest) = (None::<(u64, Option<f64>)>, None::<f64>);
+            for i in (0..poses.len()).filter(|&i| !fixed[i]) {
+                let par = pair_parallax_deg(map, poses[first], poses[i]);
+                if second.is_none_or(|(s, _)| serial(i) < s) {
+                    second = Some((serial(i), par));
+                }
+                widest = match (widest, par) {
+                    (Some(w), Some(p)) => Some(w.max(p)),
+                    (w, p) => w.or(p),
+                };
+            }
+            let weak_start =
+                second.is_some_and(|(_, p)| p.is_some_and(|p| p < WEAK_PAIR_PARALLAX_DEG));
             if weak_start && widest.is_some_and(|p| p < WIDE_KEYFRAME_PARALLAX_DEG) {
-                fix_scale_gauge(&mut fixed, |i| {
-                    map.keyframe(poses[i]).map_or(u64::MAX, |k| k.serial)
-                });
+                fix_scale_gauge(&mut fixed, serial);
             }
         }
         p.poses = self

@@ -134,7 +134,15 @@ impl KeyframeReconstructor {
             consensus_window: config.consensus_window,
             early_reject_after: config.early_reject_after,
             row_support_gate: config.row_support_gate,
-            support: vec![false; width * height],
+            // Only the gate reads it.
+            support: vec![
+                false;
+                if config.row_support_gate {
+                    width * height
+                } else {
+                    0
+                }
+            ],
             min_patch_zncc: config.min_patch_zncc as f32,
             contrast_reference: config.contrast_reference,
             cache: (0..2 * n + 2)
