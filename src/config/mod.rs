@@ -313,6 +313,12 @@ impl Config {
         if !(sd.final_seed_margin >= 0.0 && sd.final_seed_margin < 1.0) {
             return bad("semidense.final_seed_margin", "must be in [0, 1)");
         }
+        if sd.propagate_cell_px != 0 && !(2..=1024).contains(&sd.propagate_cell_px) {
+            return bad("semidense.propagate_cell_px", "must be 0 (off) or 2..=1024");
+        }
+        if !(sd.propagate_margin >= 0.0 && sd.propagate_margin < 1.0) {
+            return bad("semidense.propagate_margin", "must be in [0, 1)");
+        }
         if !(1..=MAX_NEIGHBOURS).contains(&sd.n_neighbours) {
             return bad(
                 "semidense.n_neighbours",

@@ -72,10 +72,10 @@ pub struct SemiDenseConfig {
     /// (columns x-1..=x+1 of rows y-1 and y+1) was fused. An unsupported pixel is rarely
     /// kept by the intra-keyframe check (III-D needs neighbours that agree): on desk half
     /// the odd-row pixels are unsupported and they hold about 1% of the odd rows' points the
-    /// check keeps, while their searches are a quarter of the depth stage. Off by default: it
-    /// makes the depth stage about 10% faster but costs 2-6% of the points, and posters and
-    /// low-light then keep 9.7-9.8k points per keyframe online, under issue 31's 10k
-    /// (docs/PERFORMANCE.md); on a robot short of CPU turn it on.
+    /// check keeps, while their searches are a quarter of the depth stage. It makes the depth
+    /// stage about 10% faster and costs 2-6% of the points; with propagation
+    /// (`propagate_cell_px`) the cloud keeps more points than without either (posters and
+    /// low-light 10.3-10.5k per keyframe, desk +23%, docs/PERFORMANCE.md).
     pub row_support_gate: bool,
     /// Regional prior (not in the paper, see `semidense::prior`): cell side in pixels of the
     /// grid whose cells search only the inverse depths of the ORB map points around them
@@ -136,6 +136,23 @@ pub struct SemiDenseConfig {
     pub final_seed_margin: f64,
     pub final_seed_min_points: usize,
     pub final_seed_early_reject_after: usize,
+    /// Online propagation (not in the paper, which searches each keyframe from scratch):
+    /// the depth maps of the keyframe's neighbours already reconstructed are carried into
+    /// it (at today's poses and scale) and, where the 3 x 3 cells of this side around a
+    /// pixel hold `propagate_min_points` of their inverse depths, the pixel's search visits
+    /// only their [min, max] widened by `propagate_margin`, and it is dropped after
+    /// `propagate_early_reject_after` neighbours without a compatible pair. Pixels elsewhere
+    /// (what the neighbours did not reconstruct: new or uncertain surfaces) are searched
+    /// over the prior as usual. A window hides the rest of the segment, and with it the
+    /// ambiguity of a repetitive texture (a wrong depth carried in would be confirmed in
+    /// every neighbour: repetitive's outliers 0.17 -> 2.3%): a pixel's neighbours are searched
+    /// in full until one gives a hypothesis, and the window is kept only if that one lands
+    /// in it. Desk keeps 23% more points at the same accuracy; with the row support gate the
+    /// depth stage is 7-23% faster than without either (docs/PERFORMANCE.md). 0 = off.
+    pub propagate_cell_px: usize,
+    pub propagate_margin: f64,
+    pub propagate_min_points: usize,
+    pub propagate_early_reject_after: usize,
 }
 
 impl Default for SemiDenseConfig {
@@ -156,7 +173,7 @@ impl Default for SemiDenseConfig {
             max_similarity_error: 5.99,
             consensus_window: false,
             early_reject_after: 3,
-            row_support_gate: false,
+            row_support_gate: true,
             prior_cell_px: 32,
             min_patch_zncc: 0.5,
             prior_margin: 0.25,
@@ -173,6 +190,10 @@ impl Default for SemiDenseConfig {
             final_seed_margin: 0.02,
             final_seed_min_points: 3,
             final_seed_early_reject_after: 2,
+            propagate_cell_px: 8,
+            propagate_margin: 0.05,
+            propagate_min_points: 3,
+            propagate_early_reject_after: 3,
         }
     }
 }
@@ -204,6 +225,7 @@ impl SemiDenseConfig {
                 contrast_reference: 0.0,
                 photometric_gain: false,
                 final_seed_cell_px: 0,
+                propagate_cell_px: 0,
                 ..self.clone()
             },
         }
@@ -261,6 +283,17 @@ impl SemiDenseConfig {
                 c.final_seed_margin,
                 c.final_seed_min_points,
                 c.final_seed_early_reject_after
+            ),
+        );
+        add(
+            c.propagate_cell_px > 0,
+            "propagate_cell_px",
+            format!(
+                "{} (margin {}, {} points, early rejection after {})",
+                c.propagate_cell_px,
+                c.propagate_margin,
+                c.propagate_min_points,
+                c.propagate_early_reject_after
             ),
         );
         out

@@ -24,6 +24,15 @@ pub(super) struct DepthContext<'a> {
     /// Per-region ranges (inside `rho_range`), when on.
     pub(super) prior: Option<&'a RegionalPrior>,
     pub(super) seed: Option<&'a RegionalPrior>,
+    /// Pixels the seed has no range for are left unsearched (end of session: the keyframe's
+    /// own earlier map searched them) rather than searched over the prior (online
+    /// propagation: the neighbours' maps miss what only this keyframe sees).
+    pub(super) skip_unseeded: bool,
+    /// Early rejection of the pixels the seed narrowed.
+    pub(super) seeded_reject_after: usize,
+    /// The seed's window is only a proposal, kept once a search of the full segment agrees
+    /// with it (online propagation).
+    pub(super) verify_seed: bool,
     pub(super) pixels: AtomicU64,
     pub(super) samples: AtomicU64,
     pub(super) seeded: AtomicU64,
@@ -165,12 +174,26 @@ impl DepthContext<'_> {
             let mut window = None;
             if let Some(seed) = self.seed {
                 window = seed.narrowed_range(x, y);
-                if window.is_none() {
+                if window.is_some() {
+                    counts.seeded += 1;
+                } else if self.skip_unseeded {
                     counts.seed_skipped += 1;
                     continue;
                 }
-                counts.seeded += 1;
             }
+            // A propagated window hides the rest of the segment, and with it the ambiguity
+            // of a repetitive texture (a wrong depth carried in from a neighbour would be
+            // confirmed in every neighbour). Neighbours are searched in full until one gives
+            // a hypothesis; the window is kept for the rest only when that one lands in it.
+            let mut proposed = None;
+            if self.verify_seed {
+                proposed = window.take();
+            }
+            let mut reject_after = if window.is_some() {
+                self.seeded_reject_after
+            } else {
+                self.early_reject_after
+            };
             let p = &self.reference.at(x, y);
             counts.pixels += 1;
             let rho_range = self.prior.map_or(self.rho_range, |p| p.range(x, y));
@@ -178,7 +201,7 @@ impl DepthContext<'_> {
             let mut n = 0;
             let total = self.pairs.len();
             for (j, (pair, img)) in self.pairs.iter().zip(self.neighbours).enumerate() {
-                if self.gives_up(j, total, &hyps[..n]) {
+                if self.gives_up(j, total, reject_after, &hyps[..n]) {
                     counts.abandoned += 1;
                     break;
                 }
@@ -194,6 +217,13 @@ impl DepthContext<'_> {
                 ) {
                     hyps[n] = hy;
                     n += 1;
+                    if let Some((lo, hi)) = proposed.take() {
+                        let k = 2.0 * hy.sigma as f64;
+                        if hy.rho as f64 + k >= lo && hy.rho as f64 - k <= hi {
+                            window = Some((lo, hi));
+                            reject_after = self.seeded_reject_after;
+                        }
+                    }
                     if self.consensus_window && !agreed {
                         if let Some(w) = consensus_window(&hyps[..n]) {
                             (window, agreed) = (Some(w), true);
@@ -226,13 +256,13 @@ impl DepthContext<'_> {
     /// Whether searching neighbour `j` (of `total`) on, with hypotheses `h` so far, cannot
     /// give the pixel an estimate: fewer than lambda_N hypotheses remain possible (fusion
     /// would reject it), or it is ambiguous at the early-rejection point (config
-    /// `early_reject_after`: no two hypotheses agree), or will be (no pair can form by then).
-    fn gives_up(&self, j: usize, total: usize, h: &[Hypothesis]) -> bool {
+    /// `early_reject_after`, here `at`: no two hypotheses agree), or will be (no pair can
+    /// form by then).
+    fn gives_up(&self, j: usize, total: usize, at: usize, h: &[Hypothesis]) -> bool {
         let n = h.len();
         if n + (total - j) < self.lambda_n {
             return true;
         }
-        let at = self.early_reject_after;
         if at == 0 || at > total {
             return false;
         }

@@ -20,13 +20,18 @@ use crate::geometry::Se3;
 /// Most neighbours a keyframe is searched in (the paper uses N = 7).
 pub use crate::config::MAX_NEIGHBOURS;
 
-/// What an earlier depth map of the keyframe tells its search (end of session: the online
-/// map): per-cell inverse-depth ranges where it had estimates (pixels elsewhere are not
-/// searched), and the early-rejection point for the keyframe (`[semidense] final_seed_*`).
+/// What earlier depth maps tell a keyframe's search: per-cell inverse-depth ranges where they
+/// had estimates, and the early-rejection point of the pixels they narrow. End of session
+/// (`[semidense] final_seed_*`) the keyframe's own online map: pixels elsewhere are not
+/// searched (`skip_unseeded`). Online (`propagate_*`) its neighbours' maps carried into it:
+/// pixels elsewhere are searched over the prior as usual.
 #[derive(Clone, Copy, Debug)]
 pub struct Seed<'a> {
     pub ranges: &'a RegionalPrior,
     pub early_reject_after: usize,
+    pub skip_unseeded: bool,
+    /// The window is a proposal: kept for a pixel once a full search agrees with it.
+    pub verify: bool,
 }
 
 /// Time spent in each stage of one keyframe.
@@ -328,7 +333,10 @@ impl KeyframeReconstructor {
             params,
             lambda_n: self.lambda_n,
             consensus_window: self.consensus_window,
-            early_reject_after: seed.map_or(self.early_reject_after, |s| s.early_reject_after),
+            early_reject_after: self.early_reject_after,
+            skip_unseeded: seed.is_some_and(|s| s.skip_unseeded),
+            verify_seed: seed.is_some_and(|s| s.verify),
+            seeded_reject_after: seed.map_or(self.early_reject_after, |s| s.early_reject_after),
             reference,
             neighbours: &neighbours[..],
             pairs: &self.pairs,

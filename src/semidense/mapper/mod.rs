@@ -6,6 +6,7 @@
 //! keyframe allocates nothing.
 
 mod output;
+mod propagate;
 mod workspace;
 use output::{pose_and_scale_now, reanchor, sample_anchors, Anchor};
 use workspace::{Sink, Workspace};
@@ -98,9 +99,11 @@ pub struct SemiDenseStats {
 pub struct PixelCounts {
     /// Reference pixels with G > lambda_G searched (III-B).
     pub searched: u64,
-    /// ... whose range an earlier depth map of the keyframe narrowed (end of session:
-    /// `final_seed_cell_px`); pixels with G > lambda_G left unsearched because that map has
-    /// nothing around them (not in `searched`).
+    /// ... whose range earlier depth maps narrowed (end of session, the keyframe's own:
+    /// `final_seed_cell_px`; online, its neighbours' carried into it, as a window a first
+    /// full search must confirm: `propagate_cell_px`); pixels with G > lambda_G left
+    /// unsearched because the end-of-session seed has nothing around them (not in
+    /// `searched`).
     pub seeded: u64,
     pub seed_skipped: u64,
     /// Pixels with G > lambda_G of odd rows left unsearched: no fused pixel above or below
@@ -286,7 +289,7 @@ impl SemiDenseMapper {
         self.pending.push_back(kf);
         while self.pending.len() > self.config.keyframe_delay {
             if let Some(k) = self.pending.pop_front() {
-                self.reconstruct(map, k, None);
+                self.reconstruct_online(map, k);
                 self.check_ready(map, false);
             }
         }
@@ -296,7 +299,7 @@ impl SemiDenseMapper {
     /// has (end of the run).
     pub fn flush(&mut self, map: &Mutex<Map>) {
         while let Some(k) = self.pending.pop_front() {
-            self.reconstruct(map, k, None);
+            self.reconstruct_online(map, k);
             self.check_ready(map, false);
         }
         self.check_ready(map, true);
@@ -478,6 +481,16 @@ impl SemiDenseMapper {
         let room = AtomicUsize::new(self.arena.capacity() - self.arena.len());
         let (ws, config, mut out) = self.parts(&room);
         ws.reconstruct(config, map, kf, &mut out, seed);
+    }
+
+    /// Reconstructs `kf` online: its search narrowed by the depth maps of its neighbours
+    /// reconstructed before it (`propagate_cell_px`).
+    fn reconstruct_online(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
+        if self.config.propagate_cell_px > 0 {
+            let m = map.lock().unwrap_or_else(|e| e.into_inner());
+            self.ws.propagate(&m, kf, &self.entries, &self.arena);
+        }
+        self.reconstruct(map, kf, None);
     }
 
     /// The workspace, the settings and a sink into this mapper's store (`room`: its free

@@ -318,3 +318,107 @@ fn a_seed_narrows_the_search_and_a_wrong_seed_moves_no_point() {
         misled_out * 100.0
     );
 }
+
+/// The densifier's keyframes reconstructed in online order (`on_keyframe`, then `flush`).
+fn online(d: &Densifier, config: &SemiDenseConfig) -> SemiDenseMapper {
+    let mut m = mapper_for(config);
+    for &k in d.keyframes() {
+        m.on_keyframe(d.map(), k);
+    }
+    m.flush(d.map());
+    m
+}
+
+/// Depth of keyframe `kf`'s intra-checked pixels in `m`, by pixel index.
+fn raw_depths(m: &SemiDenseMapper, kf: KeyFrameId) -> std::collections::HashMap<u32, f32> {
+    let e = m.entries.iter().rfind(|e| e.keyframe == kf).expect("entry");
+    m.pixels(e).map(|p| (p.raw.idx, 1.0 / p.raw.rho)).collect()
+}
+
+#[test]
+fn propagation_narrows_online_searches_and_a_wrong_one_moves_no_point() {
+    let config = Config::default();
+    let d = densifier(&config);
+    let off = SemiDenseConfig {
+        propagate_cell_px: 0,
+        ..config.semidense.clone()
+    };
+    let plain = online(&d, &off);
+    let prop = online(&d, &config.semidense);
+    assert_eq!(plain.stats.pixels.seeded, 0);
+    let px = &prop.stats.pixels;
+    assert!(
+        px.seeded > px.searched / 2,
+        "{} of {} searched pixels had a propagated window",
+        px.seeded,
+        px.searched
+    );
+    let cloud_of = |m: &SemiDenseMapper| {
+        let mut c = Vec::new();
+        m.cloud(&d.map().lock().unwrap(), &mut c);
+        c
+    };
+    let (plain_out, plain_n) = outlier_share(&cloud_of(&plain));
+    let (prop_out, prop_n) = outlier_share(&cloud_of(&prop));
+    eprintln!(
+        "without propagation {plain_n} points, {:.3}% off; with {prop_n}, {:.3}% off",
+        plain_out * 100.0,
+        prop_out * 100.0
+    );
+    assert!(
+        prop_n as f64 > 0.9 * plain_n as f64,
+        "{prop_n} points, {plain_n} without"
+    );
+    assert!(
+        prop_out <= plain_out.max(0.002) * 1.5,
+        "outliers {:.2}% with propagation, {:.2}% without",
+        prop_out * 100.0,
+        plain_out * 100.0
+    );
+    // The neighbours' maps 30% too deep: their windows miss the true depths. The first full
+    // search disagrees with them, so the keyframe is searched as without propagation (taken
+    // at their word, the windows cost three quarters of its pixels).
+    let kf = d.keyframes()[d.keyframes().len() / 2];
+    let last = prop.entries.iter().position(|e| e.keyframe == kf).unwrap();
+    let mut misled = mapper_for(&config.semidense);
+    // Into the reserved store (its free room is what a keyframe may fill).
+    misled.entries.extend_from_slice(&prop.entries[..last]);
+    let end = misled.entries.last().map_or(0, |e| e.start + e.len);
+    misled.arena.extend_from_slice(&prop.arena[..end]);
+    for p in &mut misled.arena {
+        p.rho /= 1.3;
+        p.raw.rho /= 1.3;
+    }
+    misled.reconstruct_online(d.map(), kf);
+    assert!(misled.stats.pixels.seeded > 0);
+    let truth = raw_depths(&plain, kf);
+    let got = raw_depths(&misled, kf);
+    let moved = got
+        .iter()
+        .filter(|(i, z)| truth.get(i).is_some_and(|t| (*z / t - 1.0).abs() > 0.1))
+        .count();
+    let fooled = got
+        .iter()
+        .filter(|(i, z)| {
+            truth
+                .get(i)
+                .is_some_and(|t| (*z / (t * 1.3) - 1.0).abs() < 0.03)
+        })
+        .count();
+    eprintln!(
+        "misled: {} pixels ({} without propagation), {moved} moved > 10%, {fooled} at the wrong depth",
+        got.len(),
+        truth.len()
+    );
+    assert!(
+        got.len() as f64 > 0.8 * truth.len() as f64,
+        "{} pixels with wrong windows, {} without propagation",
+        got.len(),
+        truth.len()
+    );
+    assert!(
+        (fooled as f64) < 0.005 * got.len() as f64,
+        "{fooled} of {} pixels took the wrong windows' depth",
+        got.len()
+    );
+}

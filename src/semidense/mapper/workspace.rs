@@ -31,6 +31,8 @@ struct Snapshot {
     rho_range: (f64, f64),
     anchors: heapless::Vec<Anchor, MAX_ANCHORS>,
     seeded: bool,
+    /// The neighbours' maps narrow the search (online propagation).
+    propagated: bool,
 }
 
 /// The buffers one keyframe's reconstruction works in, reserved at construction.
@@ -52,6 +54,10 @@ pub(super) struct Workspace {
     prior: RegionalPrior,
     /// Ranges from the keyframe's online depth map (end of session, `final_seed_cell_px`).
     seed_ranges: RegionalPrior,
+    /// Ranges from the neighbours' depth maps (online, `propagate_cell_px`; see
+    /// `propagate.rs`), and how many of their points the next reconstruction's grid holds.
+    pub(super) propagated: RegionalPrior,
+    pub(super) propagated_points: usize,
 }
 
 /// Where reconstructed keyframes go: the mapper's own store, or a second worker's until it
@@ -88,6 +94,8 @@ impl Workspace {
             scratch_pixels: Vec::with_capacity(width * height),
             prior: RegionalPrior::new(width, height, config.prior_cell_px),
             seed_ranges: RegionalPrior::new(width, height, config.final_seed_cell_px),
+            propagated: RegionalPrior::new(width, height, config.propagate_cell_px),
+            propagated_points: 0,
         }
     }
 
@@ -152,10 +160,21 @@ impl Workspace {
                 let gray = n.staged.then(|| &self.gray_nb[k][..]);
                 r.add_neighbour(n.serial, gray, &n.t_ji, n.delta_theta, n.gain);
             }
-            let seed = snap.seeded.then_some(Seed {
-                ranges: &self.seed_ranges,
-                early_reject_after: config.final_seed_early_reject_after,
-            });
+            let seed = if snap.seeded {
+                Some(Seed {
+                    ranges: &self.seed_ranges,
+                    early_reject_after: config.final_seed_early_reject_after,
+                    skip_unseeded: true,
+                    verify: true,
+                })
+            } else {
+                snap.propagated.then_some(Seed {
+                    ranges: &self.propagated,
+                    early_reject_after: config.propagate_early_reject_after,
+                    skip_unseeded: false,
+                    verify: true,
+                })
+            };
             r.reconstruct_seeded(snap.rho_range, Some(&self.prior), seed)
         };
         self.reconstructor.export(&mut self.scratch_pixels);
@@ -325,6 +344,15 @@ impl Workspace {
         }
         let seeded =
             seed.is_some_and(|s| self.seed_from(config, s, &map, kf, rho_range, neighbours.len()));
+        let propagated = !seeded
+            && std::mem::take(&mut self.propagated_points) >= config.propagate_min_points.max(1);
+        if propagated {
+            self.propagated.finish(
+                rho_range,
+                config.propagate_min_points,
+                config.propagate_margin,
+            );
+        }
         self.gray_ref.clear();
         self.gray_ref.extend_from_slice(&k.gray);
         self.colour_ref.clear();
@@ -340,6 +368,7 @@ impl Workspace {
             rho_range,
             anchors,
             seeded,
+            propagated,
         })
     }
 
