@@ -257,6 +257,31 @@ fn outlier_share(cloud: &[CloudPoint]) -> (f64, usize) {
     (off as f64 / n.max(1) as f64, n)
 }
 
+/// A variant's cloud (outlier share, points) keeps more than `min_share` of the base's
+/// points, and at most 1.5 times its outlier share (0.2% at least).
+fn assert_kept(
+    label: &str,
+    (out, n): (f64, usize),
+    (base_out, base_n): (f64, usize),
+    min_share: f64,
+) {
+    eprintln!(
+        "base {base_n} points, {:.3}% off; {label} {n}, {:.3}% off",
+        base_out * 100.0,
+        out * 100.0
+    );
+    assert!(
+        n as f64 > min_share * base_n as f64,
+        "{label}: {n} points, {base_n} in the base"
+    );
+    assert!(
+        out <= base_out.max(0.002) * 1.5,
+        "{label}: outliers {:.2}%, {:.2}% in the base",
+        out * 100.0,
+        base_out * 100.0
+    );
+}
+
 #[test]
 fn a_seed_narrows_the_search_and_a_wrong_seed_moves_no_point() {
     let config = Config::default();
@@ -281,23 +306,13 @@ fn a_seed_narrows_the_search_and_a_wrong_seed_moves_no_point() {
         px.seeded,
         px.searched
     );
-    let (seeded_out, seeded_n) = outlier_share(&cloud_of(&seeded));
-    eprintln!(
-        "without seed {plain_n} points, {:.3}% off; seeded {seeded_n}, {:.3}% off",
-        plain_out * 100.0,
-        seeded_out * 100.0
-    );
     // Early rejection after 2 (`final_seed_early_reject_after`) trades 10-20% of the points
     // for accuracy on the synthetic scenes (docs/PERFORMANCE.md).
-    assert!(
-        seeded_n as f64 > 0.8 * plain_n as f64,
-        "{seeded_n} points seeded, {plain_n} without"
-    );
-    assert!(
-        seeded_out <= plain_out.max(0.002) * 1.5,
-        "outliers {:.2}% seeded, {:.2}% without",
-        seeded_out * 100.0,
-        plain_out * 100.0
+    assert_kept(
+        "seeded",
+        outlier_share(&cloud_of(&seeded)),
+        (plain_out, plain_n),
+        0.8,
     );
     // A seed 30% too deep everywhere: its ranges miss the true depths. The pass may lose
     // points but must not give them the seed's depths.
@@ -358,22 +373,11 @@ fn propagation_narrows_online_searches_and_a_wrong_one_moves_no_point() {
         m.cloud(&d.map().lock().unwrap(), &mut c);
         c
     };
-    let (plain_out, plain_n) = outlier_share(&cloud_of(&plain));
-    let (prop_out, prop_n) = outlier_share(&cloud_of(&prop));
-    eprintln!(
-        "without propagation {plain_n} points, {:.3}% off; with {prop_n}, {:.3}% off",
-        plain_out * 100.0,
-        prop_out * 100.0
-    );
-    assert!(
-        prop_n as f64 > 0.9 * plain_n as f64,
-        "{prop_n} points, {plain_n} without"
-    );
-    assert!(
-        prop_out <= plain_out.max(0.002) * 1.5,
-        "outliers {:.2}% with propagation, {:.2}% without",
-        prop_out * 100.0,
-        plain_out * 100.0
+    assert_kept(
+        "propagated",
+        outlier_share(&cloud_of(&prop)),
+        outlier_share(&cloud_of(&plain)),
+        0.9,
     );
     // The neighbours' maps 30% too deep: their windows miss the true depths. The first full
     // search disagrees with them, so the keyframe is searched as without propagation (taken
