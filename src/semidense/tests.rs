@@ -158,6 +158,18 @@ fn keyframe_run(
     exposure: f32,
     compensate: bool,
 ) -> (Stats, Stats, super::reconstructor::StageTimes) {
+    keyframe_run_seeded(cfg, exposure, compensate, None)
+}
+
+/// [`keyframe_run`] with a seed of the true inverse depths in 8 px cells (5% margin) when
+/// `seed_verify` is given: `Some(true)` as online propagation uses it (a window a first full
+/// search must confirm), `Some(false)` as the end-of-session pass does (trusted).
+fn keyframe_run_seeded(
+    cfg: &SemiDenseConfig,
+    exposure: f32,
+    compensate: bool,
+    seed_verify: Option<bool>,
+) -> (Stats, Stats, super::reconstructor::StageTimes) {
     let seq = sequence();
     let k = intrinsics(&seq.config);
     let (w, h) = (seq.config.width as usize, seq.config.height as usize);
@@ -207,8 +219,21 @@ fn keyframe_run(
             if compensate { gain } else { 1.0 },
         );
     }
+    let mut ranges = RegionalPrior::new(w, h, 8);
+    for (i, &d) in r.depth.iter().enumerate().step_by(3) {
+        if d > 0.0 {
+            ranges.add((i % w) as f32, (i / w) as f32, 1.0 / d);
+        }
+    }
+    ranges.finish(range, 3, 0.05);
+    let seed = seed_verify.map(|verify| super::reconstructor::Seed {
+        ranges: &ranges,
+        early_reject_after: cfg.early_reject_after,
+        skip_unseeded: false,
+        verify,
+    });
     let t = std::time::Instant::now();
-    let times = rec.reconstruct(range);
+    let times = rec.reconstruct_seeded(range, None, seed);
     eprintln!("range {range:?} times {times:?} total {:?}", t.elapsed());
     let (fr, fs) = rec.fused();
     let fused = stats("fused", &relative_errors(fr, fs, &r.depth));
@@ -326,6 +351,35 @@ fn row_support_gate_skips_unsupported_pixels_and_keeps_points_and_accuracy() {
         full.0
     );
     assert_no_less_accurate(&gated, &full);
+}
+
+/// A window is searched alone when trusted (the end-of-session seed) and after one full
+/// search when it must be confirmed (online propagation): the confirmed search visits more
+/// samples. Right windows keep the points and accuracy of the full search either way.
+#[test]
+fn a_trusted_window_spares_the_full_search_and_a_confirmed_one_does_not() {
+    let cfg = SemiDenseConfig::default();
+    let (_, full, t_full) = keyframe_run(&cfg, 1.0, false);
+    let (_, trusted, t_trusted) = keyframe_run_seeded(&cfg, 1.0, false, Some(false));
+    let (_, confirmed, t_confirmed) = keyframe_run_seeded(&cfg, 1.0, false, Some(true));
+    assert!(t_full.seeded == 0 && t_trusted.seeded > t_trusted.searched_pixels / 2);
+    assert!(
+        (t_trusted.samples as f64) < 0.5 * t_confirmed.samples as f64,
+        "samples: trusted {}, confirmed {}, full {}",
+        t_trusted.samples,
+        t_confirmed.samples,
+        t_full.samples
+    );
+    assert!(t_confirmed.samples < t_full.samples);
+    for got in [trusted, confirmed] {
+        assert!(
+            got.0 as f64 > 0.95 * full.0 as f64,
+            "{} points, full {}",
+            got.0,
+            full.0
+        );
+        assert_no_less_accurate(&got, &full);
+    }
 }
 
 #[test]

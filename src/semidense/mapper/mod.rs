@@ -106,6 +106,9 @@ pub struct PixelCounts {
     /// `searched`).
     pub seeded: u64,
     pub seed_skipped: u64,
+    /// Epipolar samples visited by the searches, over all neighbours (the depth stage's
+    /// work: a window visits only its part of a segment).
+    pub samples: u64,
     /// Pixels with G > lambda_G of odd rows left unsearched: no fused pixel above or below
     /// them (`row_support_gate`; not in `searched`).
     pub support_skipped: u64,
@@ -176,6 +179,7 @@ impl std::ops::AddAssign<&PixelCounts> for PixelCounts {
         self.searched += b.searched;
         self.seeded += b.seeded;
         self.seed_skipped += b.seed_skipped;
+        self.samples += b.samples;
         self.support_skipped += b.support_skipped;
         self.search_abandoned += b.search_abandoned;
         self.fused += b.fused;

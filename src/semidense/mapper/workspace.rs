@@ -165,7 +165,8 @@ impl Workspace {
                     ranges: &self.seed_ranges,
                     early_reject_after: config.final_seed_early_reject_after,
                     skip_unseeded: true,
-                    verify: true,
+                    // The keyframe's own map, searched in full online: its windows stand.
+                    verify: false,
                 })
             } else {
                 snap.propagated.then_some(Seed {
@@ -230,6 +231,7 @@ impl Workspace {
             searched: times.searched_pixels,
             seeded: times.seeded,
             seed_skipped: times.seed_skipped,
+            samples: times.samples,
             support_skipped: times.support_skipped,
             search_abandoned: times.abandoned,
             fused: times.fused,
