@@ -37,7 +37,8 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
         });
     }
     let finishing = Instant::now();
-    let mut threads_ok = r.system.finish_tracking();
+    let mapping_ok = r.system.finish_tracking();
+    let mut threads_ok = mapping_ok;
     fill_tracking_report(&mut r.report, &r.system, &r.frame_timer);
     let trajectory = r.system.trajectory();
     let keyframes = r.system.keyframe_trajectory();
@@ -98,8 +99,15 @@ pub fn finish(s: &mut Session, r: &mut Running) -> Finished {
     r.system.release_working_memory();
     sdslam::io::return_freed_memory();
     if !threads_ok {
+        // Named here too: under full CPU load the semi-dense thread (SCHED_IDLE) may die
+        // only after the last frame, when the frame loop no longer asks.
+        let which = if mapping_ok {
+            "the semi-dense thread"
+        } else {
+            "the local-mapping or loop-closing thread"
+        };
         r.report.stopped_early.get_or_insert_with(|| {
-            "a worker thread panicked; outputs written from the map as it was".into()
+            format!("{which} panicked; outputs written from the map as it was")
         });
     }
     // `cloud` is what semidense.ply holds; with the end-of-session reconstruction the online
