@@ -318,6 +318,17 @@ fn assert_no_less_accurate(a: &Stats, b: &Stats) {
     assert!(a.3 <= b.3 + 0.002, "beyond 10%: {} vs {}", a.3, b.3);
 }
 
+/// `a` keeps more than 95% of `b`'s points and is no less accurate.
+fn assert_keeps_points_and_accuracy(a: &Stats, b: &Stats) {
+    assert!(
+        a.0 as f64 > 0.95 * b.0 as f64,
+        "{} points, {} before",
+        a.0,
+        b.0
+    );
+    assert_no_less_accurate(a, b);
+}
+
 /// The row support gate leaves the odd-row pixels with nothing fused above or below them
 /// unsearched (a fifth of this keyframe's pixels) and keeps the points and accuracy of the
 /// search of every pixel: such pixels rarely survive the intra-keyframe check.
@@ -344,13 +355,7 @@ fn row_support_gate_skips_unsupported_pixels_and_keeps_points_and_accuracy() {
         t_gated.searched_pixels,
         t_full.searched_pixels
     );
-    assert!(
-        gated.0 as f64 > 0.95 * full.0 as f64,
-        "{} points (every row: {})",
-        gated.0,
-        full.0
-    );
-    assert_no_less_accurate(&gated, &full);
+    assert_keeps_points_and_accuracy(&gated, &full);
 }
 
 /// A window is searched alone when trusted (the end-of-session seed) and after one full
@@ -372,13 +377,7 @@ fn a_trusted_window_spares_the_full_search_and_a_confirmed_one_does_not() {
     );
     assert!(t_confirmed.samples < t_full.samples);
     for got in [trusted, confirmed] {
-        assert!(
-            got.0 as f64 > 0.95 * full.0 as f64,
-            "{} points, full {}",
-            got.0,
-            full.0
-        );
-        assert_no_less_accurate(&got, &full);
+        assert_keeps_points_and_accuracy(&got, &full);
     }
 }
 
