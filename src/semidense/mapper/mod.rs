@@ -491,8 +491,13 @@ impl SemiDenseMapper {
     /// reconstructed before it (`propagate_cell_px`).
     fn reconstruct_online(&mut self, map: &Mutex<Map>, kf: KeyFrameId) {
         if self.config.propagate_cell_px > 0 {
-            let m = map.lock().unwrap_or_else(|e| e.into_inner());
-            self.ws.propagate(&m, kf, &self.entries, &self.arena);
+            // Poses under the map lock; the pixels are carried after it is released.
+            let sources = {
+                let m = map.lock().unwrap_or_else(|e| e.into_inner());
+                let max = self.ws.reconstructor.max_neighbours();
+                propagate::sources(&m, kf, &self.entries, max, &mut self.ws.scratch_f32)
+            };
+            self.ws.propagate(&sources, &self.entries, &self.arena);
         }
         self.reconstruct(map, kf, None);
     }
