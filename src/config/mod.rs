@@ -408,6 +408,10 @@ impl Config {
                 "tracking.collapse_young_over_old",
                 t.collapse_young_over_old,
             ),
+            (
+                "tracking.collapse_min_kept_baseline",
+                t.collapse_min_kept_baseline,
+            ),
             ("tracking.max_centre_sigma_ratio", t.max_centre_sigma_ratio),
             ("tracking.max_mean_chi2", t.max_mean_chi2),
             ("tracking.max_jump_ratio", t.max_jump_ratio),

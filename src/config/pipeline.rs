@@ -58,7 +58,8 @@ pub struct TrackingConfig {
     /// `collapse_max_turn_deg` (or turned, but with new points nearer than the old ones, see
     /// `collapse_young_over_old`): the map is rolled back to the window's first keyframe (what
     /// it made after it erased, with those frames' poses; see `runtime::system::rollback`),
-    /// or discarded when no more than `young_map_keyframes` would be left.
+    /// or discarded when no more than `young_map_keyframes` would be left, or when what would
+    /// be left never had a baseline (`collapse_min_kept_baseline`).
     pub collapse_path_ratio: f64,
     pub collapse_depth_shrink: f64,
     pub collapse_max_turn_deg: f64,
@@ -68,6 +69,12 @@ pub struct TrackingConfig {
     /// holding both; `tracking::collapse`). On the same surfaces the two agree: a map whose
     /// motion shrank triangulates its new points from too short baselines, too near.
     pub collapse_young_over_old: f64,
+    /// A collapsing map is rolled back only when the keyframes it would keep span at least
+    /// this share of their median scene depth (ours): a roll-back trusts what came before the
+    /// window, and keyframes that never moved further apart than that (a turn on the spot)
+    /// stood on sub-degree parallax from the start. Otherwise it is discarded. 0.035 is
+    /// twice the initialisation's 1 degree (`tan 2 deg`); the suite's roll-backs keep 0.25-1.3.
+    pub collapse_min_kept_baseline: f64,
     /// A tracked pose is `Degraded`, not `Ok` (see `tracking::quality`; ours, not ORB-SLAM's),
     /// when its camera centre's 1-sigma uncertainty exceeds this share of the median scene
     /// depth (every sequence of the robustness suite stays below 0.011)...
@@ -104,6 +111,7 @@ impl Default for TrackingConfig {
             collapse_max_turn_deg: 15.0,
             collapse_keyframes: 5,
             collapse_young_over_old: 0.5,
+            collapse_min_kept_baseline: 0.035,
             max_centre_sigma_ratio: 0.02,
             max_mean_chi2: 3.0,
             max_jump_ratio: 0.15,

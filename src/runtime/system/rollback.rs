@@ -16,6 +16,16 @@ struct RolledBack {
     poses: usize,
 }
 
+/// Why a collapsing map is discarded rather than rolled back.
+#[derive(Debug, PartialEq)]
+enum NotRolledBack {
+    /// No more than `young_map_keyframes` keyframes would be left.
+    Young,
+    /// The keyframes that would be left span this share of their median depth, under
+    /// `collapse_min_kept_baseline`: they never had a baseline to be sound with.
+    NoBaseline(f64),
+}
+
 impl System {
     /// A keyframe was made: the collapse monitor's turn. A map found collapsing is rolled
     /// back to the keyframe its window started from (the depth collapsed after it); a young
@@ -41,16 +51,24 @@ impl System {
             c.collapse_depth_shrink,
             c.collapse_path_ratio,
         );
-        match self.roll_back_active_map(map, &evidence) {
-            Some(r) => {
+        let min_kept_baseline = c.collapse_min_kept_baseline;
+        match self.roll_back_active_map(map, &evidence, min_kept_baseline) {
+            Ok(r) => {
                 reason += &format!(
                     "; rolled back to frame {}: {} keyframes, {} points and {} poses after it erased",
                     evidence.from_frame, r.keyframes, r.points, r.poses
                 );
                 tracing::warn!(%reason, "map diverging: rolled back");
             }
-            None => {
-                reason += "; map discarded";
+            Err(why) => {
+                match why {
+                    NotRolledBack::Young => reason += "; map discarded",
+                    NotRolledBack::NoBaseline(r) => {
+                        reason += &format!(
+                            "; map discarded: the keyframes before the window span {r:.3} of their depth, under {min_kept_baseline} (no baseline)"
+                        )
+                    }
+                }
                 tracing::warn!(%reason, "map diverging: discarded, initialising again");
                 self.discard_active_map(map);
             }
@@ -60,13 +78,15 @@ impl System {
 
     /// Erases what the active map made after the collapse window's first keyframe: the later
     /// keyframes, the points they created and the poses of the later frames. Tracking is lost
-    /// and relocalises in what is left (or the atlas starts a new map). `None` (nothing
-    /// erased) when fewer than `young_map_keyframes` + 1 keyframes would be left.
+    /// and relocalises in what is left (or the atlas starts a new map). Nothing is erased
+    /// when fewer than `young_map_keyframes` + 1 keyframes would be left, or when they span
+    /// less than `min_kept_baseline` of their median depth.
     fn roll_back_active_map(
         &mut self,
         map: &mut Map,
         evidence: &crate::tracking::CollapseEvidence,
-    ) -> Option<RolledBack> {
+        min_kept_baseline: f64,
+    ) -> Result<RolledBack, NotRolledBack> {
         let id = map.active_map();
         let kfs = map.keyframes_of(id);
         let mut later: Vec<(u64, KeyFrameId)> = kfs
@@ -76,9 +96,21 @@ impl System {
             .map(|(_, serial, k)| (serial, k))
             .collect();
         if kfs.len() - later.len() <= self.limits.young_map_keyframes {
-            return None;
+            return Err(NotRolledBack::Young);
         }
-        let first_serial = later.iter().map(|&(s, _)| s).min()?;
+        let kept: Vec<KeyFrameId> = kfs
+            .iter()
+            .copied()
+            .filter(|k| later.iter().all(|&(_, l)| l != *k))
+            .collect();
+        match baseline_over_depth(map, &kept) {
+            Some(r) if r >= min_kept_baseline => {}
+            Some(r) => return Err(NotRolledBack::NoBaseline(r)),
+            None => return Err(NotRolledBack::NoBaseline(0.0)),
+        }
+        let Some(first_serial) = later.iter().map(|&(s, _)| s).min() else {
+            return Err(NotRolledBack::Young);
+        };
         let mut points: Vec<crate::map::MapPointId> = later
             .iter()
             .filter_map(|&(_, k)| map.keyframe(k))
@@ -101,7 +133,7 @@ impl System {
             .filter(|&&(_, k)| map.erase_keyframe(k))
             .count();
         self.lost_after_map_edit();
-        Some(RolledBack {
+        Ok(RolledBack {
             keyframes,
             points: points.len(),
             poses,
@@ -109,12 +141,36 @@ impl System {
     }
 }
 
+/// The widest distance between the centres of `kfs` over the median of their median scene
+/// depths (scale-free); `None` without a depth.
+fn baseline_over_depth(map: &Map, kfs: &[KeyFrameId]) -> Option<f64> {
+    let centres: Vec<nalgebra::Vector3<f64>> = kfs
+        .iter()
+        .filter_map(|&k| map.keyframe(k).map(|kf| kf.t_cw.inverse().position()))
+        .collect();
+    let mut depths: Vec<f64> = kfs
+        .iter()
+        .filter_map(|&k| crate::local_mapping::median_depth(map, k))
+        .filter(|d| *d > 0.0)
+        .collect();
+    if depths.is_empty() {
+        return None;
+    }
+    let mid = depths.len() / 2;
+    let depth = *depths.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
+    let widest = centres
+        .iter()
+        .flat_map(|a| centres.iter().map(move |b| (a - b).norm()))
+        .fold(0.0, f64::max);
+    Some(widest / depth)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::camera::Frame;
     use crate::synthetic::{SyntheticConfig, SyntheticSequence};
-    use crate::tracking::CollapseEvidence;
+    use crate::tracking::{CollapseEvidence, TrackingConfig};
 
     /// The built-in orbit tracked for 120 frames, rolled back to its keyframe nearest frame
     /// 60, then frames 61.. again: what went, what stayed, and that tracking resumes in the
@@ -181,7 +237,8 @@ mod tests {
             inliers: 100,
             young_over_old: None,
         };
-        let Some(r) = system.roll_back_active_map(&mut map, &evidence) else {
+        let min_kept_baseline = TrackingConfig::default().collapse_min_kept_baseline;
+        let Ok(r) = system.roll_back_active_map(&mut map, &evidence, min_kept_baseline) else {
             panic!("an established map was not rolled back");
         };
         assert_eq!(r.keyframes, later);
@@ -224,5 +281,78 @@ mod tests {
             .flat_map(|a| centres.iter().map(move |b| (a - b).norm()))
             .fold(0.0f64, f64::max);
         assert!(worst < 0.02 * extent, "{worst} vs extent {extent}");
+    }
+
+    /// The keyframes of the active map of a system fed `frames` frames of `scenario`
+    /// (deterministic), with their baseline over depth.
+    fn baseline_after(
+        scenario: crate::synthetic::Scenario,
+        frames: usize,
+    ) -> (System, Vec<KeyFrameId>, Option<f64>) {
+        let seq = SyntheticSequence::new(SyntheticConfig {
+            scenario,
+            ..SyntheticConfig::default()
+        });
+        let mut config = Config::default();
+        config.semidense.enabled = false;
+        let mut system = System::new(&seq.config.calibration(), &config, 400, false);
+        let mut f = Frame::new(seq.config.width, seq.config.height);
+        for i in 0..frames {
+            seq.render_frame(i, &mut f);
+            system.process(&f.gray, Some(&f.rgb), f.timestamp, i as u64);
+        }
+        let kfs = {
+            let map = lock(&system.map);
+            map.keyframes_of(map.active_map()).to_vec()
+        };
+        let ratio = baseline_over_depth(&lock(&system.map), &kfs);
+        (system, kfs, ratio)
+    }
+
+    /// A turn on the spot (an 8 cm arm, 3.3 m deep) makes keyframes that span well under
+    /// the bar; the orbit's span many times it. So a collapse of the first is discarded and
+    /// of the second rolled back, and the bar leaves room on both sides.
+    #[test]
+    fn a_turn_on_the_spot_has_no_baseline_to_roll_back_to_and_an_orbit_has() {
+        let bar = TrackingConfig::default().collapse_min_kept_baseline;
+        let (_, kfs, turn) = baseline_after(crate::synthetic::Scenario::Rotation, 45);
+        assert!(kfs.len() >= 3, "the turn made {} keyframes", kfs.len());
+        let Some(turn) = turn else {
+            panic!("no depth in the turn's keyframes");
+        };
+        assert!(turn < bar, "turn on the spot: {turn}");
+        let (mut system, kfs, orbit) = baseline_after(crate::synthetic::Scenario::Desk, 60);
+        let Some(orbit) = orbit else {
+            panic!("no depth in the orbit's keyframes");
+        };
+        assert!(orbit > 4.0 * bar, "orbit: {orbit}");
+        // Asked to keep more baseline than its keyframes have, the orbit is not rolled back
+        // and nothing is erased.
+        let map_arc = Arc::clone(&system.map);
+        let mut map = lock(&map_arc);
+        let Some((from_frame, from_timestamp)) = kfs
+            .iter()
+            .filter_map(|&k| map.keyframe(k).map(|k| (k.frame_index, k.timestamp)))
+            .filter(|&(fi, _)| fi >= 30)
+            .min_by_key(|&(fi, _)| fi)
+        else {
+            panic!("no keyframe after frame 30");
+        };
+        let evidence = CollapseEvidence {
+            from_frame,
+            from_timestamp,
+            frame: 59,
+            depth_ratio: 0.2,
+            path_per_depth_lost: 0.01,
+            turn_deg: 1.0,
+            inliers: 100,
+            young_over_old: None,
+        };
+        match system.roll_back_active_map(&mut map, &evidence, 10.0) {
+            Err(NotRolledBack::NoBaseline(r)) => assert!(r > 4.0 * bar && r < 10.0, "{r}"),
+            Err(e) => panic!("not rolled back for another reason: {e:?}"),
+            Ok(_) => panic!("rolled back although the bar was not met"),
+        }
+        assert_eq!(map.keyframes_of(map.active_map()).len(), kfs.len());
     }
 }
