@@ -17,6 +17,7 @@ bin="${SDSLAM:-$here/../target/release/sdslam}"
 data="${DATA:-$here/../../shared/data}"
 [ -x "$bin" ] || { echo "no sdslam binary at $bin (cargo build --release, or set SDSLAM)" >&2; exit 1; }
 [ -d "$data/synthetic/desk" ] || { echo "no sequences under $data (set DATA)" >&2; exit 1; }
+python3 -c "import numpy" 2>/dev/null || { echo "tools/robustness.py needs numpy (pip install numpy)" >&2; exit 1; }
 mkdir -p "$out"
 sources=(
     "desk $data/synthetic/desk $data/synthetic/desk/groundtruth.txt"
