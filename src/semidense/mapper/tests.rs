@@ -289,7 +289,7 @@ fn a_seed_narrows_the_search_and_a_wrong_seed_moves_no_point() {
     let kfs = d.keyframes().to_vec();
     let cloud_of = |m: &SemiDenseMapper| {
         let mut c = Vec::new();
-        m.cloud(&d.map().lock().unwrap(), &mut c);
+        m.cloud(&d.map().lock().unwrap_or_else(|e| e.into_inner()), &mut c);
         c
     };
     let final_pass = |seed: &SemiDenseMapper| {
@@ -367,7 +367,9 @@ fn online(d: &Densifier, config: &SemiDenseConfig) -> SemiDenseMapper {
 
 /// Depth of keyframe `kf`'s intra-checked pixels in `m`, by pixel index.
 fn raw_depths(m: &SemiDenseMapper, kf: KeyFrameId) -> std::collections::HashMap<u32, f32> {
-    let e = m.entries.iter().rfind(|e| e.keyframe == kf).expect("entry");
+    let Some(e) = m.entries.iter().rfind(|e| e.keyframe == kf) else {
+        panic!("no entry for keyframe {kf:?}");
+    };
     m.pixels(e).map(|p| (p.raw.idx, 1.0 / p.raw.rho)).collect()
 }
 
@@ -391,7 +393,7 @@ fn propagation_narrows_online_searches_and_a_wrong_one_moves_no_point() {
     );
     let cloud_of = |m: &SemiDenseMapper| {
         let mut c = Vec::new();
-        m.cloud(&d.map().lock().unwrap(), &mut c);
+        m.cloud(&d.map().lock().unwrap_or_else(|e| e.into_inner()), &mut c);
         c
     };
     assert_kept(
@@ -404,7 +406,9 @@ fn propagation_narrows_online_searches_and_a_wrong_one_moves_no_point() {
     // search disagrees with them, so the keyframe is searched as without propagation (taken
     // at their word, the windows cost three quarters of its pixels).
     let kf = d.keyframes()[d.keyframes().len() / 2];
-    let last = prop.entries.iter().position(|e| e.keyframe == kf).unwrap();
+    let Some(last) = prop.entries.iter().position(|e| e.keyframe == kf) else {
+        panic!("no entry for keyframe {kf:?}");
+    };
     let mut misled = mapper_for(&config.semidense);
     // Into the reserved store (its free room is what a keyframe may fill).
     misled.entries.extend_from_slice(&prop.entries[..last]);
