@@ -61,13 +61,11 @@ impl System {
                 tracing::warn!(%reason, "map diverging: rolled back");
             }
             Err(why) => {
-                match why {
-                    NotRolledBack::Young => reason += "; map discarded",
-                    NotRolledBack::NoBaseline(r) => {
-                        reason += &format!(
-                            "; map discarded: the keyframes before the window span {r:.3} of their depth, under {min_kept_baseline} (no baseline)"
-                        )
-                    }
+                reason += "; map discarded";
+                if let NotRolledBack::NoBaseline(r) = why {
+                    reason += &format!(
+                        ": the keyframes before the window span {r:.3} of their depth, under {min_kept_baseline} (no baseline)"
+                    );
                 }
                 tracing::warn!(%reason, "map diverging: discarded, initialising again");
                 self.discard_active_map(map);
