@@ -109,3 +109,44 @@ fn shipped_calibration_files_parse() {
         "expected calibration files for TUM fr1/2/3, EuRoC, synthetic; found {n}"
     );
 }
+
+/// A 12-bit or 10-bit camera's frames saved as 16-bit PNGs read as the same grey image as the
+/// 8-bit original (the high byte alone would be grey levels 0-15, on which nothing tracks).
+#[test]
+fn sixteen_bit_pngs_of_a_10_or_12_bit_camera_read_like_the_8_bit_original() {
+    let d = tempfile::tempdir().unwrap();
+    let (w, h) = (64u32, 48u32);
+    // Three frames of texture over the whole grey range (a hash of the pixel and frame).
+    let originals: Vec<Vec<u8>> = (0..3u32)
+        .map(|i| {
+            (0..w * h)
+                .map(|p| ((p.wrapping_mul(2_654_435_761) ^ (i * 977)) >> 7) as u8)
+                .collect()
+        })
+        .collect();
+    let mut f = Frame::new(w, h);
+    assert_eq!(originals.len(), 3);
+    for (bits, name) in [(12u32, "twelve"), (10, "ten")] {
+        let dir = d.path().join(name);
+        std::fs::create_dir_all(dir.join("rgb")).unwrap();
+        let mut list = String::new();
+        for (i, g) in originals.iter().enumerate() {
+            let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(w, h, |x, y| {
+                let v = g[(y * w + x) as usize] as u16;
+                image::Luma([(v << (bits - 8)) | 1])
+            });
+            img.save(dir.join(format!("rgb/{i}.png"))).unwrap();
+            list += &format!("{}.0 rgb/{i}.png\n", i + 1);
+        }
+        std::fs::write(dir.join("rgb.txt"), list).unwrap();
+        let mut src = ImageListSource::open(&dir).unwrap();
+        for (i, g) in originals.iter().enumerate() {
+            assert_eq!(src.next_frame(&mut f).unwrap(), FrameStatus::Ready);
+            assert!(!f.has_color);
+            assert!(
+                f.gray == *g,
+                "{bits}-bit frame {i} differs from the original"
+            );
+        }
+    }
+}

@@ -17,11 +17,55 @@ pub const MAX_PIXELS: u64 = 64_000_000;
 pub struct ImageDecoderBuf {
     bytes: Vec<u8>,
     scratch: Vec<u8>,
+    wide: WideSamples,
+}
+
+/// How one source's 16-bit samples become 8-bit grey levels. Their significant bits are often
+/// fewer than 16: machine-vision and thermal cameras write 10, 12 or 14 bits (and some tools 8)
+/// into 16-bit PNGs and ROS `mono16` messages. Keeping the high byte turns a 12-bit image into
+/// grey levels 0-15, on which nothing is tracked. The right shift is that of the smallest
+/// common depth holding the largest sample of the first image with content (largest sample
+/// at least [`MIN_WIDE_CONTENT`]), then kept for the source so brightness never jumps between
+/// frames; brighter samples later saturate.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct WideSamples {
+    shift: Option<u32>,
+}
+
+/// Largest 16-bit sample below which an image is too dark to tell its bit depth.
+const MIN_WIDE_CONTENT: u16 = 64;
+
+impl WideSamples {
+    /// The shift for an image whose largest (colour) sample is `max`.
+    pub fn shift(&mut self, max: u16) -> u32 {
+        if self.shift.is_none() {
+            self.shift = match max {
+                m if m < MIN_WIDE_CONTENT => None,
+                0..=255 => Some(0),
+                256..=1023 => Some(2),
+                1024..=4095 => Some(4),
+                4096..=16383 => Some(6),
+                _ => Some(8),
+            };
+        }
+        self.shift.unwrap_or(8)
+    }
+
+    /// `v` as an 8-bit grey level.
+    #[inline]
+    pub fn to_u8(shift: u32, v: u16) -> u8 {
+        (v >> shift).min(255) as u8
+    }
 }
 
 impl ImageDecoderBuf {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// The source's 16-bit depth, for raw pixels decoded beside the encoded ones.
+    pub fn wide_samples(&mut self) -> &mut WideSamples {
+        &mut self.wide
     }
 
     /// Reads `path` and decodes it into `out`. With `expect` set, an image of another size is
@@ -126,7 +170,12 @@ impl ImageDecoderBuf {
                 self.scratch.resize(total, 0);
                 dec.read_image(&mut self.scratch)
                     .map_err(|e| derr(e.to_string()))?;
-                convert_other(color, &self.scratch, out);
+                let shift = if bytes_per_sample(color) == 2 {
+                    self.wide.shift(max_colour_sample(color, &self.scratch))
+                } else {
+                    0
+                };
+                convert_other(color, &self.scratch, shift, out);
             }
             other => return Err(derr(format!("unsupported pixel type {other:?}"))),
         }
@@ -154,14 +203,33 @@ fn jpeg_is_complete(bytes: &[u8]) -> bool {
     }
 }
 
-/// Converts the less common layouts (alpha, 16-bit) into grey + RGB.
-fn convert_other(color: ColorType, src: &[u8], out: &mut Frame) {
+fn bytes_per_sample(color: ColorType) -> usize {
+    color.bytes_per_pixel() as usize / color.channel_count() as usize
+}
+
+/// The largest colour sample (alpha left out) of 16-bit native-endian pixels.
+fn max_colour_sample(color: ColorType, src: &[u8]) -> u16 {
     let chans = color.channel_count() as usize;
-    let wide = color.bytes_per_pixel() as usize / chans == 2;
+    let colours = if color.has_alpha() { chans - 1 } else { chans };
+    src.chunks_exact(2 * chans)
+        .flat_map(|px| {
+            px.chunks_exact(2)
+                .take(colours)
+                .map(|b| u16::from_ne_bytes([b[0], b[1]]))
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+/// Converts the less common layouts (alpha, 16-bit) into grey + RGB; 16-bit samples are
+/// shifted right by `shift` and saturated.
+fn convert_other(color: ColorType, src: &[u8], shift: u32, out: &mut Frame) {
+    let chans = color.channel_count() as usize;
+    let wide = bytes_per_sample(color) == 2;
     let sample = |px: &[u8], c: usize| -> u8 {
         if wide {
-            // 16-bit samples are native-endian in the decoder output; keep the high byte.
-            (u16::from_ne_bytes([px[2 * c], px[2 * c + 1]]) >> 8) as u8
+            // 16-bit samples are native-endian in the decoder output.
+            WideSamples::to_u8(shift, u16::from_ne_bytes([px[2 * c], px[2 * c + 1]]))
         } else {
             px[c]
         }
@@ -313,5 +381,47 @@ mod tests {
             .decode(&bytes[..bytes.len() / 2], Path::new("t.png"), None, &mut f)
             .unwrap_err();
         assert!(e.to_string().contains("t.png"), "{e}");
+    }
+
+    fn encode_png_gray16(w: u32, h: u32, value: impl Fn(u32, u32) -> u16) -> Vec<u8> {
+        let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(w, h, |x, y| {
+            image::Luma([value(x, y)])
+        });
+        let mut v = Vec::new();
+        img.write_to(&mut Cursor::new(&mut v), image::ImageFormat::Png)
+            .unwrap();
+        v
+    }
+
+    #[test]
+    fn sixteen_bit_images_use_their_significant_bits() {
+        let decode = |d: &mut ImageDecoderBuf, bytes: &[u8]| {
+            let mut f = Frame::new(16, 16);
+            d.decode(bytes, Path::new("a.png"), None, &mut f).unwrap();
+            f
+        };
+        // 12 bits in 16 (a machine-vision camera): the full grey range, not levels 0-15.
+        let twelve = encode_png_gray16(16, 16, |x, y| ((x * 16 + y) * 16) as u16);
+        let mut d = ImageDecoderBuf::new();
+        let f = decode(&mut d, &twelve);
+        assert_eq!(f.gray_at(15, 15), 255);
+        assert_eq!(f.gray_at(8, 0), 128);
+        assert!(!f.has_color);
+        // The depth is kept for the sequence: a brighter sample saturates, nothing rescales.
+        let brighter = encode_png_gray16(16, 16, |x, _| if x == 0 { 8000 } else { 2048 });
+        let f = decode(&mut d, &brighter);
+        assert_eq!((f.gray_at(0, 3), f.gray_at(5, 3)), (255, 128));
+        // Full 16-bit content keeps the high byte; 8 bits in 16 are taken as they are.
+        let full = encode_png_gray16(16, 16, |x, _| (x * 4096) as u16);
+        let f = decode(&mut ImageDecoderBuf::new(), &full);
+        assert_eq!(f.gray_at(8, 0), 128);
+        let eight = encode_png_gray16(16, 16, |x, _| (x * 16) as u16);
+        let f = decode(&mut ImageDecoderBuf::new(), &eight);
+        assert_eq!(f.gray_at(8, 0), 128);
+        // A black first frame does not fix the depth; the first frame with content does.
+        let mut d = ImageDecoderBuf::new();
+        let black = encode_png_gray16(16, 16, |_, _| 3);
+        assert_eq!(decode(&mut d, &black).gray_at(4, 4), 0);
+        assert_eq!(decode(&mut d, &twelve).gray_at(8, 0), 128);
     }
 }

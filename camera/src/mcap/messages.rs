@@ -157,7 +157,9 @@ fn utf8<'a>(b: &'a [u8], what: &str) -> Result<&'a str, String> {
     std::str::from_utf8(b).map_err(|_| format!("{what} is not UTF-8"))
 }
 
-/// Writes raw pixels into `out` (grey, and RGB for colour encodings). `expect` fixes the size.
+/// Writes raw pixels into `out` (grey, and RGB for colour encodings); 16-bit ones at the
+/// source's significant bits (`wide`). The arguments are a ROS `sensor_msgs/Image`'s fields.
+#[allow(clippy::too_many_arguments)]
 pub fn raw_to_frame(
     width: u32,
     height: u32,
@@ -165,6 +167,7 @@ pub fn raw_to_frame(
     big_endian: bool,
     step: u32,
     data: &[u8],
+    wide: &mut crate::decode::WideSamples,
     out: &mut Frame,
 ) -> Result<(), String> {
     if width == 0 || height == 0 {
@@ -204,9 +207,21 @@ pub fn raw_to_frame(
             out.has_color = false;
         }
         "mono16" | "16uc1" => {
+            let sample = |px: &[u8]| {
+                if big_endian {
+                    u16::from_be_bytes([px[0], px[1]])
+                } else {
+                    u16::from_le_bytes([px[0], px[1]])
+                }
+            };
+            let max = (0..h)
+                .flat_map(|r| rows(r).chunks_exact(2).map(sample))
+                .max()
+                .unwrap_or(0);
+            let shift = wide.shift(max);
             for (r, dst) in out.gray.chunks_exact_mut(w).enumerate() {
                 for (d, px) in dst.iter_mut().zip(rows(r).chunks_exact(2)) {
-                    *d = if big_endian { px[0] } else { px[1] };
+                    *d = crate::decode::WideSamples::to_u8(shift, sample(px));
                 }
             }
             out.has_color = false;
@@ -376,6 +391,7 @@ fn proto_timestamp(b: &[u8]) -> Result<Option<f64>, String> {
 mod tests {
     use super::super::cdr::CdrWriter;
     use super::*;
+    use crate::decode::WideSamples;
 
     fn ros_image(enc: &str, w: u32, h: u32, step: u32, data: &[u8]) -> Vec<u8> {
         let mut c = CdrWriter::new();
@@ -425,33 +441,57 @@ mod tests {
                 panic!()
             };
             let mut f = Frame::new(0, 0);
-            raw_to_frame(width, height, encoding, big_endian, step, data, &mut f).unwrap();
+            let wide = &mut WideSamples::default();
+            raw_to_frame(
+                width, height, encoding, big_endian, step, data, wide, &mut f,
+            )
+            .unwrap();
             assert_eq!(f.gray, want.gray, "{enc} step {step}");
             assert_eq!(f.rgb, want.rgb, "{enc}");
         }
-        // mono16 keeps the high byte; YUYV and UYVY keep Y.
+        // Full-range mono16 keeps the high byte, 12-bit mono16 its 12 bits (either byte
+        // order); YUYV and UYVY keep Y.
         let m16: Vec<u8> = [0x1234u16, 0xff00]
             .iter()
             .flat_map(|v| v.to_le_bytes())
             .collect();
         let mut f = Frame::new(0, 0);
-        raw_to_frame(2, 1, "mono16", false, 4, &m16, &mut f).unwrap();
+        let wide = &mut WideSamples::default();
+        raw_to_frame(2, 1, "mono16", false, 4, &m16, wide, &mut f).unwrap();
         assert_eq!(f.gray, [0x12, 0xff]);
-        raw_to_frame(2, 1, "yuv422_yuy2", false, 4, &[10, 128, 20, 128], &mut f).unwrap();
+        let m12: Vec<u8> = [0x0800u16, 0x0fff]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        let wide = &mut WideSamples::default();
+        raw_to_frame(2, 1, "mono16", true, 4, &m12, wide, &mut f).unwrap();
+        assert_eq!(f.gray, [0x80, 0xff]);
+        raw_to_frame(
+            2,
+            1,
+            "yuv422_yuy2",
+            false,
+            4,
+            &[10, 128, 20, 128],
+            wide,
+            &mut f,
+        )
+        .unwrap();
         assert_eq!(f.gray, [10, 20]);
-        raw_to_frame(2, 1, "yuv422", false, 4, &[128, 10, 128, 20], &mut f).unwrap();
+        raw_to_frame(2, 1, "yuv422", false, 4, &[128, 10, 128, 20], wide, &mut f).unwrap();
         assert_eq!(f.gray, [10, 20]);
     }
 
     #[test]
     fn short_data_and_unknown_encodings_are_clear_errors() {
         let mut f = Frame::new(0, 0);
-        let e = raw_to_frame(4, 2, "rgb8", false, 12, &[0; 20], &mut f).unwrap_err();
+        let wide = &mut WideSamples::default();
+        let e = raw_to_frame(4, 2, "rgb8", false, 12, &[0; 20], wide, &mut f).unwrap_err();
         assert!(
             e.contains("24 bytes") && e.contains("has step 12 and 20"),
             "{e}"
         );
-        let e = raw_to_frame(4, 2, "bayer_rggb8", false, 4, &[0; 8], &mut f).unwrap_err();
+        let e = raw_to_frame(4, 2, "bayer_rggb8", false, 4, &[0; 8], wide, &mut f).unwrap_err();
         assert!(e.contains("bayer_rggb8"), "{e}");
         let msg = ros_image("mono8", 4, 2, 4, &[0; 8]);
         for cut in 0..msg.len() {

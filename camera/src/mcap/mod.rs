@@ -525,7 +525,8 @@ fn decode_into(
             if let Some((w, h)) = expect.filter(|&e| e != (width, height)) {
                 return Err(format!("image is {width}x{height}, expected {w}x{h}"));
             }
-            messages::raw_to_frame(width, height, encoding, big_endian, step, data, out)?
+            let wide = decoder.wide_samples();
+            messages::raw_to_frame(width, height, encoding, big_endian, step, data, wide, out)?
         }
         ImagePayload::Compressed { data, .. } => decoder
             .decode(data, path, expect, out)

@@ -6,6 +6,11 @@ use crate::tracking::Prepared;
 
 /// Consecutive frames without initialisation after which a warning says why.
 const NOT_INITIALISED_WARNING_FRAMES: usize = 90;
+/// Mean grey level under which the warning blames the exposure.
+const DARK_MEAN_GREY: f64 = 20.0;
+/// Features per frame under which the warning blames the view (ORB-SLAM starts from 100
+/// matches).
+const FEW_FEATURES: usize = 100;
 
 impl System {
     pub(super) fn initialize(
@@ -24,7 +29,7 @@ impl System {
         let t_attempt = std::time::Instant::now();
         let attempt = self.init.attempt(&self.frame, gray, rgb, &k, &mut ready);
         self.stats.initialisation.record(t_attempt.elapsed());
-        self.note_attempt(self.frame.index, &attempt);
+        self.note_attempt(self.frame.index, gray, &attempt);
         let Some((motion, pairs)) = ready else {
             return TrackingState::NotInitialised;
         };
@@ -83,7 +88,7 @@ impl System {
                     solved,
                     &mut ready,
                 );
-                self.note_attempt(c.frame.index, &attempt);
+                self.note_attempt(c.frame.index, gray, &attempt);
                 if let Some((motion, pairs)) = ready {
                     let state = self.initialise_from_candidate(map, &mut c, motion, pairs);
                     self.put_candidate(c);
@@ -97,7 +102,7 @@ impl System {
             return TrackingState::NotInitialised;
         }
         match self.init.prepare(&self.frame, gray, rgb) {
-            Prepared::Done(attempt) => self.note_attempt(self.frame.index, &attempt),
+            Prepared::Done(attempt) => self.note_attempt(self.frame.index, gray, &attempt),
             Prepared::Solve(problem) => {
                 let frame = &self.frame;
                 if let Some(solver) = self.init_solver.as_mut() {
@@ -146,12 +151,14 @@ impl System {
         self.tracker.track(map, &mut self.frame)
     }
 
-    /// Counts a failed attempt and says once, after about 3 s, why initialisation keeps failing.
-    fn note_attempt(&mut self, frame: u64, attempt: &InitAttempt) {
+    /// Counts a failed attempt and says once, after about 3 s, why initialisation keeps failing
+    /// (from the current frame, `gray`: too dark, too few features, or the motion).
+    fn note_attempt(&mut self, frame: u64, gray: &[u8], attempt: &InitAttempt) {
+        let features = self.frame.features.len();
         tracing::debug!(
             frame,
             reference = self.init.reference_index,
-            features = self.frame.features.len(),
+            features,
             ?attempt,
             "initialisation attempt"
         );
@@ -161,10 +168,20 @@ impl System {
         }
         self.uninitialised_frames += 1;
         if self.uninitialised_frames == NOT_INITIALISED_WARNING_FRAMES {
+            let mean_grey =
+                gray.iter().map(|&v| v as u64).sum::<u64>() as f64 / gray.len().max(1) as f64;
+            let why = if mean_grey < DARK_MEAN_GREY {
+                format!("the images are nearly black (mean grey level {mean_grey:.0} of 255): raise exposure or gain")
+            } else if features < FEW_FEATURES {
+                format!("{features} features in the frame, fewer than the {FEW_FEATURES} matches a start needs: point the camera at texture (the view is blank, blurred or dark)")
+            } else {
+                "the camera needs to translate (not only rotate) over a textured, non-planar scene"
+                    .to_string()
+            };
             tracing::warn!(
                 frames = self.uninitialised_frames,
                 last_attempt = ?attempt,
-                "not initialised yet: the camera needs to translate (not only rotate) over a textured, non-planar scene"
+                "not initialised yet: {why}"
             );
         }
     }
