@@ -8,7 +8,9 @@
 #        tools/robustness_suite.sh /tmp/det --deterministic --no-semidense
 #        tools/robustness_suite.sh /tmp/rt --realtime --config my.toml
 # SDSLAM (default target/release/sdslam) picks the binary; DATA (default ../shared/data) the
-# sequences.
+# sequences. CAMERA=fisheye runs the 11 built-in scenes through the 170-degree Kannala-Brandt
+# lens instead (rendered once with `sdslam synth --camera fisheye` into OUT_DIR/scenes; the
+# recorded sequences are pinhole and left out).
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:?usage: tools/robustness_suite.sh OUT_DIR [sdslam run options...]}"
@@ -19,17 +21,39 @@ data="${DATA:-$here/../../shared/data}"
 [ -d "$data/synthetic/desk" ] || { echo "no sequences under $data (set DATA)" >&2; exit 1; }
 python3 -c "import numpy" 2>/dev/null || { echo "tools/robustness.py needs numpy (pip install numpy)" >&2; exit 1; }
 mkdir -p "$out"
-sources=(
-    "desk $data/synthetic/desk $data/synthetic/desk/groundtruth.txt"
-    "posters $data/synthetic/posters $data/synthetic/posters/groundtruth.txt"
-    "kitti06_51 $data/real/kitti06_51 $data/real/kitti06_51/groundtruth.txt"
-    "kitti01_51 $data/real/kitti01_51 $data/real/kitti01_51/groundtruth.txt"
-    "orbit synthetic -"
-)
-for s in rotation outward-loop forward fast-blur exposure-step blackout repetitive \
-    moving-objects low-light auto-exposure; do
-    sources+=("$s synthetic:$s -")
-done
+scenes=(rotation outward-loop forward fast-blur exposure-step blackout repetitive
+    moving-objects low-light auto-exposure)
+case "${CAMERA:-pinhole}" in
+pinhole)
+    sources=(
+        "desk $data/synthetic/desk $data/synthetic/desk/groundtruth.txt"
+        "posters $data/synthetic/posters $data/synthetic/posters/groundtruth.txt"
+        "kitti06_51 $data/real/kitti06_51 $data/real/kitti06_51/groundtruth.txt"
+        "kitti01_51 $data/real/kitti01_51 $data/real/kitti01_51/groundtruth.txt"
+        "orbit synthetic -"
+    )
+    for s in "${scenes[@]}"; do
+        sources+=("$s synthetic:$s -")
+    done
+    ;;
+fisheye)
+    sources=()
+    for s in desk "${scenes[@]}"; do
+        folder="$out/scenes/$s"
+        if [ ! -f "$folder/rgb.txt" ]; then
+            rm -rf "$folder"
+            "$bin" -q synth --scene "$s" --camera fisheye --out "$folder" >/dev/null
+        fi
+        name=$s
+        [ "$s" = desk ] && name=orbit
+        sources+=("$name $folder $folder/groundtruth.txt")
+    done
+    ;;
+*)
+    echo "CAMERA must be pinhole or fisheye" >&2
+    exit 1
+    ;;
+esac
 for entry in "${sources[@]}"; do
     read -r name src gt <<<"$entry"
     o="$out/$name"
