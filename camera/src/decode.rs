@@ -25,7 +25,7 @@ pub struct ImageDecoderBuf {
 /// into 16-bit PNGs and ROS `mono16` messages. Keeping the high byte turns a 12-bit image into
 /// grey levels 0-15, on which nothing is tracked. The right shift is that of the smallest
 /// common depth holding the largest sample of the first image with content (largest sample
-/// at least [`MIN_WIDE_CONTENT`]), then kept for the source so brightness never jumps between
+/// at least `MIN_WIDE_CONTENT`, 64), then kept for the source so brightness never jumps between
 /// frames; brighter samples later saturate.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct WideSamples {
