@@ -168,16 +168,7 @@ impl System {
         }
         self.uninitialised_frames += 1;
         if self.uninitialised_frames == NOT_INITIALISED_WARNING_FRAMES {
-            let mean_grey =
-                gray.iter().map(|&v| v as u64).sum::<u64>() as f64 / gray.len().max(1) as f64;
-            let why = if mean_grey < DARK_MEAN_GREY {
-                format!("the images are nearly black (mean grey level {mean_grey:.0} of 255): raise exposure or gain")
-            } else if features < FEW_FEATURES {
-                format!("{features} features in the frame, fewer than the {FEW_FEATURES} matches a start needs: point the camera at texture (the view is blank, blurred or dark)")
-            } else {
-                "the camera needs to translate (not only rotate) over a textured, non-planar scene"
-                    .to_string()
-            };
+            let why = why_not_initialised(gray, features);
             tracing::warn!(
                 frames = self.uninitialised_frames,
                 last_attempt = ?attempt,
@@ -322,5 +313,37 @@ impl System {
             "backfill"
         );
         TrackingState::Ok
+    }
+}
+
+/// Why initialisation keeps failing, judged from the current frame: its mean grey level, then
+/// its feature count, else the motion (for the warning after `NOT_INITIALISED_WARNING_FRAMES`).
+fn why_not_initialised(gray: &[u8], features: usize) -> String {
+    let mean_grey = gray.iter().map(|&v| v as u64).sum::<u64>() as f64 / gray.len().max(1) as f64;
+    if mean_grey < DARK_MEAN_GREY {
+        format!("the images are nearly black (mean grey level {mean_grey:.0} of 255): raise exposure or gain")
+    } else if features < FEW_FEATURES {
+        format!("{features} features in the frame, fewer than the {FEW_FEATURES} matches a start needs: point the camera at texture (the view is blank, blurred or dark)")
+    } else {
+        "the camera needs to translate (not only rotate) over a textured, non-planar scene".into()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::why_not_initialised;
+
+    #[test]
+    fn the_warning_names_darkness_then_a_blank_view_then_the_motion() {
+        let dark = vec![6u8; 64];
+        assert!(why_not_initialised(&dark, 80).contains("nearly black (mean grey level 6 "));
+        let grey = vec![120u8; 64];
+        let blank = why_not_initialised(&grey, 40);
+        assert!(
+            blank.starts_with("40 features") && blank.contains("texture"),
+            "{blank}"
+        );
+        assert!(why_not_initialised(&grey, 1000).contains("needs to translate"));
+        assert!(why_not_initialised(&[], 0).contains("nearly black"));
     }
 }
