@@ -9,8 +9,7 @@
 #        tools/robustness_suite.sh /tmp/rt --realtime --config my.toml
 # SDSLAM (default target/release/sdslam) picks the binary; DATA (default ../shared/data) the
 # sequences. CAMERA=fisheye runs the 11 built-in scenes through the 170-degree Kannala-Brandt
-# lens instead (rendered once with `sdslam synth --camera fisheye` into OUT_DIR/scenes; the
-# recorded sequences are pinhole and left out).
+# lens instead (`synthetic:NAME,fisheye`; the recorded sequences are pinhole and left out).
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:?usage: tools/robustness_suite.sh OUT_DIR [sdslam run options...]}"
@@ -37,16 +36,9 @@ pinhole)
     done
     ;;
 fisheye)
-    sources=()
-    for s in desk "${scenes[@]}"; do
-        folder="$out/scenes/$s"
-        if [ ! -f "$folder/rgb.txt" ]; then
-            rm -rf "$folder"
-            "$bin" -q synth --scene "$s" --camera fisheye --out "$folder" >/dev/null
-        fi
-        name=$s
-        [ "$s" = desk ] && name=orbit
-        sources+=("$name $folder $folder/groundtruth.txt")
+    sources=("orbit synthetic:fisheye -")
+    for s in "${scenes[@]}"; do
+        sources+=("$s synthetic:$s,fisheye -")
     done
     ;;
 *)
