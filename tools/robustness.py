@@ -41,6 +41,17 @@ def umeyama(src, dst):
     t = mu_d - c * r @ mu_s
     return c, r, t
 
+def input_timestamps(source):
+    """Timestamps of a TUM folder's rgb.txt (None for other sources)."""
+    if not source or not os.path.isfile(os.path.join(source, "rgb.txt")):
+        return None
+    out = []
+    for line in open(os.path.join(source, "rgb.txt")):
+        if line.startswith('#') or not line.strip():
+            continue
+        out.append(float(line.split()[0]))
+    return out
+
 def main():
     if len(sys.argv) < 2:
         sys.exit(__doc__)
@@ -64,7 +75,7 @@ def main():
         t = f"{out}/trajectory_map{m['id']}.txt"
         k = f"{out}/keyframes_map{m['id']}.txt"
         if os.path.exists(t) and os.path.exists(k):
-            o = evaluate(gt, read_tum(t), read_tum(k), {"frames": rep["frames"]})
+            o = evaluate(gt, read_tum(t), read_tum(k), {"frames": rep["frames"], "source": rep.get("source")})
             others[m["id"]] = {x: o.get(x) for x in ["first_pose_frame", "kf_ate_pct_path", "worst_ok_frame_pct_path", "ok_frames_off_by_5pct"]}
             others[m["id"]]["frames"] = m["tracked_frames"]
     if others:
@@ -84,7 +95,11 @@ def evaluate(gt, traj, kfs, rep):
         return res
     first = int(np.argmin(np.abs(gt[:, 0] - traj[0, 0])))
     res["first_pose_frame"] = first
-    res["tracked_after_first"] = round(len(traj) / max(1, frames - first), 4)
+    # The frames after the first pose: by the input list's timestamps when the source folder
+    # has one (a list cut or thinned out has fewer frames than the ground truth has rows).
+    stamps = input_timestamps(rep.get("source"))
+    after = (frames - first) if stamps is None else sum(t >= traj[0, 0] - 1e-6 for t in stamps)
+    res["tracked_after_first"] = round(len(traj) / max(1, after), 4)
     p = associate(kfs, gt)
     if len(p) >= 3:
         src = np.array([kfs[i, 1:4] for i, _ in p]); dst = np.array([gt[k, 1:4] for _, k in p])
