@@ -36,10 +36,11 @@ pub struct WideSamples {
 const MIN_WIDE_CONTENT: u16 = 64;
 
 impl WideSamples {
-    /// The shift for an image whose largest (colour) sample is `max`.
-    pub fn shift(&mut self, max: u16) -> u32 {
+    /// The shift for an image whose largest (colour) sample `max` gives; `max` is only
+    /// computed while the depth is undecided (a scan of the whole image).
+    pub fn shift(&mut self, max: impl FnOnce() -> u16) -> u32 {
         if self.shift.is_none() {
-            self.shift = match max {
+            self.shift = match max() {
                 m if m < MIN_WIDE_CONTENT => None,
                 0..=255 => Some(0),
                 256..=1023 => Some(2),
@@ -171,7 +172,8 @@ impl ImageDecoderBuf {
                 dec.read_image(&mut self.scratch)
                     .map_err(|e| derr(e.to_string()))?;
                 let shift = if bytes_per_sample(color) == 2 {
-                    self.wide.shift(max_colour_sample(color, &self.scratch))
+                    let scratch = &self.scratch;
+                    self.wide.shift(|| max_colour_sample(color, scratch))
                 } else {
                     0
                 };

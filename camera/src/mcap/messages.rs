@@ -214,11 +214,12 @@ pub fn raw_to_frame(
                     u16::from_le_bytes([px[0], px[1]])
                 }
             };
-            let max = (0..h)
-                .flat_map(|r| rows(r).chunks_exact(2).map(sample))
-                .max()
-                .unwrap_or(0);
-            let shift = wide.shift(max);
+            let shift = wide.shift(|| {
+                (0..h)
+                    .flat_map(|r| rows(r).chunks_exact(2).map(sample))
+                    .max()
+                    .unwrap_or(0)
+            });
             for (r, dst) in out.gray.chunks_exact_mut(w).enumerate() {
                 for (d, px) in dst.iter_mut().zip(rows(r).chunks_exact(2)) {
                     *d = crate::decode::WideSamples::to_u8(shift, sample(px));
