@@ -385,45 +385,47 @@ mod tests {
         assert!(e.to_string().contains("t.png"), "{e}");
     }
 
-    fn encode_png_gray16(w: u32, h: u32, value: impl Fn(u32, u32) -> u16) -> Vec<u8> {
+    type TestResult<T> = Result<T, Box<dyn std::error::Error>>;
+
+    fn encode_png_gray16(w: u32, h: u32, value: impl Fn(u32, u32) -> u16) -> TestResult<Vec<u8>> {
         let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(w, h, |x, y| {
             image::Luma([value(x, y)])
         });
         let mut v = Vec::new();
-        img.write_to(&mut Cursor::new(&mut v), image::ImageFormat::Png)
-            .unwrap();
-        v
+        img.write_to(&mut Cursor::new(&mut v), image::ImageFormat::Png)?;
+        Ok(v)
     }
 
     #[test]
-    fn sixteen_bit_images_use_their_significant_bits() {
-        let decode = |d: &mut ImageDecoderBuf, bytes: &[u8]| {
+    fn sixteen_bit_images_use_their_significant_bits() -> TestResult<()> {
+        let decode = |d: &mut ImageDecoderBuf, bytes: &[u8]| -> TestResult<Frame> {
             let mut f = Frame::new(16, 16);
-            d.decode(bytes, Path::new("a.png"), None, &mut f).unwrap();
-            f
+            d.decode(bytes, Path::new("a.png"), None, &mut f)?;
+            Ok(f)
         };
         // 12 bits in 16 (a machine-vision camera): the full grey range, not levels 0-15.
-        let twelve = encode_png_gray16(16, 16, |x, y| ((x * 16 + y) * 16) as u16);
+        let twelve = encode_png_gray16(16, 16, |x, y| ((x * 16 + y) * 16) as u16)?;
         let mut d = ImageDecoderBuf::new();
-        let f = decode(&mut d, &twelve);
+        let f = decode(&mut d, &twelve)?;
         assert_eq!(f.gray_at(15, 15), 255);
         assert_eq!(f.gray_at(8, 0), 128);
         assert!(!f.has_color);
         // The depth is kept for the sequence: a brighter sample saturates, nothing rescales.
-        let brighter = encode_png_gray16(16, 16, |x, _| if x == 0 { 8000 } else { 2048 });
-        let f = decode(&mut d, &brighter);
+        let brighter = encode_png_gray16(16, 16, |x, _| if x == 0 { 8000 } else { 2048 })?;
+        let f = decode(&mut d, &brighter)?;
         assert_eq!((f.gray_at(0, 3), f.gray_at(5, 3)), (255, 128));
         // Full 16-bit content keeps the high byte; 8 bits in 16 are taken as they are.
-        let full = encode_png_gray16(16, 16, |x, _| (x * 4096) as u16);
-        let f = decode(&mut ImageDecoderBuf::new(), &full);
+        let full = encode_png_gray16(16, 16, |x, _| (x * 4096) as u16)?;
+        let f = decode(&mut ImageDecoderBuf::new(), &full)?;
         assert_eq!(f.gray_at(8, 0), 128);
-        let eight = encode_png_gray16(16, 16, |x, _| (x * 16) as u16);
-        let f = decode(&mut ImageDecoderBuf::new(), &eight);
+        let eight = encode_png_gray16(16, 16, |x, _| (x * 16) as u16)?;
+        let f = decode(&mut ImageDecoderBuf::new(), &eight)?;
         assert_eq!(f.gray_at(8, 0), 128);
         // A black first frame does not fix the depth; the first frame with content does.
         let mut d = ImageDecoderBuf::new();
-        let black = encode_png_gray16(16, 16, |_, _| 3);
-        assert_eq!(decode(&mut d, &black).gray_at(4, 4), 0);
-        assert_eq!(decode(&mut d, &twelve).gray_at(8, 0), 128);
+        let black = encode_png_gray16(16, 16, |_, _| 3)?;
+        assert_eq!(decode(&mut d, &black)?.gray_at(4, 4), 0);
+        assert_eq!(decode(&mut d, &twelve)?.gray_at(8, 0), 128);
+        Ok(())
     }
 }

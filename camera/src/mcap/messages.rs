@@ -407,7 +407,7 @@ mod tests {
     }
 
     #[test]
-    fn ros_images_in_every_encoding_give_the_same_grey() {
+    fn ros_images_in_every_encoding_give_the_same_grey() -> Result<(), String> {
         let (w, h) = (4u32, 2u32);
         let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i * 7 % 256) as u8).collect();
         let mut want = Frame::new(w, h);
@@ -445,8 +445,7 @@ mod tests {
             let wide = &mut WideSamples::default();
             raw_to_frame(
                 width, height, encoding, big_endian, step, data, wide, &mut f,
-            )
-            .unwrap();
+            )?;
             assert_eq!(f.gray, want.gray, "{enc} step {step}");
             assert_eq!(f.rgb, want.rgb, "{enc}");
         }
@@ -458,14 +457,14 @@ mod tests {
             .collect();
         let mut f = Frame::new(0, 0);
         let wide = &mut WideSamples::default();
-        raw_to_frame(2, 1, "mono16", false, 4, &m16, wide, &mut f).unwrap();
+        raw_to_frame(2, 1, "mono16", false, 4, &m16, wide, &mut f)?;
         assert_eq!(f.gray, [0x12, 0xff]);
         let m12: Vec<u8> = [0x0800u16, 0x0fff]
             .iter()
             .flat_map(|v| v.to_be_bytes())
             .collect();
         let wide = &mut WideSamples::default();
-        raw_to_frame(2, 1, "mono16", true, 4, &m12, wide, &mut f).unwrap();
+        raw_to_frame(2, 1, "mono16", true, 4, &m12, wide, &mut f)?;
         assert_eq!(f.gray, [0x80, 0xff]);
         raw_to_frame(
             2,
@@ -476,11 +475,11 @@ mod tests {
             &[10, 128, 20, 128],
             wide,
             &mut f,
-        )
-        .unwrap();
+        )?;
         assert_eq!(f.gray, [10, 20]);
-        raw_to_frame(2, 1, "yuv422", false, 4, &[128, 10, 128, 20], wide, &mut f).unwrap();
+        raw_to_frame(2, 1, "yuv422", false, 4, &[128, 10, 128, 20], wide, &mut f)?;
         assert_eq!(f.gray, [10, 20]);
+        Ok(())
     }
 
     #[test]
