@@ -112,7 +112,12 @@ impl InterChecker {
         let rho = rho as f64;
         let (u_max, v_max) = ((w - 1) as f64, (h - 1) as f64);
         let (mut support, mut num, mut den) = (0usize, 0.0f64, 0.0f64);
-        for m in &self.maps[..self.active] {
+        let maps = &self.maps[..self.active];
+        for (i, m) in maps.iter().enumerate() {
+            // Too few neighbours left for lambda_n supports: rejected whatever they hold.
+            if support + (maps.len() - i) < lambda_n {
+                return None;
+            }
             // Eq. 12 in pixels: K X_j / depth_i = a + rho K t with a = K R K^-1 x, so the
             // point's inverse depth in j is rho / h.z and its pixel (h.x, h.y) / h.z.
             let a = m.kr * x;
