@@ -133,6 +133,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    sdslam::io::limit_allocator_arenas(sdslam::io::ALLOCATOR_ARENAS);
     match dispatch(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -54,6 +54,32 @@ pub fn return_freed_memory() {
     }
 }
 
+/// Most glibc malloc arenas the sdslam binary lets its threads use (see
+/// [`limit_allocator_arenas`]).
+pub const ALLOCATOR_ARENAS: i32 = 2;
+
+/// Caps glibc's malloc arenas at `n` for the whole process, unless the user set
+/// `MALLOC_ARENA_MAX` (which glibc then honours); a no-op elsewhere. glibc gives each new
+/// thread its own arena (up to 8 per core) and keeps what a thread frees resident in it: with
+/// tracking, local mapping, loop closing and three semi-dense threads allocating at start-up
+/// and on each keyframe, the arenas hold freed blocks side by side. On desk's latency bench
+/// (docs/PERFORMANCE.md) one arena gave a peak RSS of 263 and 255 MB against 285 and 271 MB
+/// uncapped, two arenas a median of 266 MB against 277 MB over three interleaved pairs. After
+/// warm-up the per-frame code does not allocate, so the arenas' locks are not on the frame
+/// path. Call before any thread starts (the binary does, first
+/// thing); an application embedding the library decides for its own process.
+pub fn limit_allocator_arenas(n: i32) {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    if std::env::var_os("MALLOC_ARENA_MAX").is_none() {
+        // SAFETY: mallopt only sets an allocator parameter; it takes no pointer.
+        unsafe {
+            libc::mallopt(libc::M_ARENA_MAX, n.max(1));
+        }
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    let _ = n;
+}
+
 /// Physical memory of the machine in bytes (Linux `MemTotal`); `None` where unknown.
 pub fn machine_memory_bytes() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/meminfo").ok()?;
