@@ -67,28 +67,30 @@ pub struct ArenaFull {
 }
 
 pub struct Arena<T> {
+    /// Slots used so far, in a buffer reserved for `capacity` (never reallocated): a slot is
+    /// first written when first needed, so the untouched rest of a large arena (100,000 map
+    /// points) costs address space, not resident memory.
     slots: Vec<Slot<T>>,
+    /// Freed slots, reused (last freed first) before a new one is taken.
     free: Vec<u32>,
+    capacity: usize,
     len: usize,
 }
 
 impl<T> Arena<T> {
-    /// Allocates `capacity` slots up front.
+    /// Allocates `capacity` slots up front (capped at `u32::MAX`, the handles' range).
     pub fn with_capacity(capacity: usize) -> Self {
+        let capacity = capacity.min(u32::MAX as usize);
         Arena {
-            slots: (0..capacity)
-                .map(|_| Slot {
-                    generation: 0,
-                    value: None,
-                })
-                .collect(),
-            free: (0..capacity as u32).rev().collect(),
+            slots: Vec::with_capacity(capacity),
+            free: Vec::with_capacity(capacity),
+            capacity,
             len: 0,
         }
     }
 
     pub fn capacity(&self) -> usize {
-        self.slots.len()
+        self.capacity
     }
     pub fn len(&self) -> usize {
         self.len
@@ -97,18 +99,29 @@ impl<T> Arena<T> {
         self.len == 0
     }
     pub fn is_full(&self) -> bool {
-        self.free.is_empty()
+        self.free.is_empty() && self.slots.len() == self.capacity
     }
 
     /// Stores `value`, or gives it back with [`ArenaFull`].
     pub fn insert(&mut self, value: T) -> Result<Handle<T>, (ArenaFull, T)> {
-        let Some(i) = self.free.pop() else {
-            return Err((
-                ArenaFull {
-                    capacity: self.slots.len(),
-                },
-                value,
-            ));
+        let i = match self.free.pop() {
+            Some(i) => i,
+            None if self.slots.len() < self.capacity => {
+                // Within the reserved buffer: no reallocation.
+                self.slots.push(Slot {
+                    generation: 0,
+                    value: None,
+                });
+                (self.slots.len() - 1) as u32
+            }
+            None => {
+                return Err((
+                    ArenaFull {
+                        capacity: self.capacity,
+                    },
+                    value,
+                ))
+            }
         };
         let s = &mut self.slots[i as usize];
         s.value = Some(value);
@@ -200,5 +213,26 @@ mod tests {
         assert_eq!(a.capacity(), 2);
         assert_eq!(a.iter().count(), 2);
         let _ = h2;
+    }
+
+    #[test]
+    fn slots_are_taken_in_order_and_the_last_freed_is_reused_first() {
+        let mut a: Arena<u32> = Arena::with_capacity(4);
+        assert!(!a.is_full() && a.capacity() == 4);
+        let hs: Vec<Handle<u32>> = (0..3).filter_map(|v| a.insert(v).ok()).collect();
+        assert_eq!(hs.iter().map(|h| h.index()).collect::<Vec<_>>(), [0, 1, 2]);
+        assert_eq!(a.remove(hs[0]), Some(0));
+        assert_eq!(a.remove(hs[2]), Some(2));
+        let order: Vec<usize> = (10..13)
+            .filter_map(|v| a.insert(v).ok())
+            .map(|h| h.index())
+            .collect();
+        assert_eq!(order, [2, 0, 3]);
+        assert!(a.is_full());
+        assert!(a.insert(99).is_err());
+        assert_eq!(
+            a.iter().map(|(_, v)| *v).collect::<Vec<_>>(),
+            [11, 1, 10, 12]
+        );
     }
 }

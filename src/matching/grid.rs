@@ -26,7 +26,9 @@ impl FeatureGrid {
             inv_cell_h: rows as f32 / (max_y - min_y).max(1e-3),
             min_x,
             min_y,
-            starts: vec![0; cols * rows + 1],
+            // Reserved, written on the first `assign`: a map reserves 500 keyframes' grids
+            // (6 MB) and most are never used.
+            starts: Vec::with_capacity(cols * rows + 1),
             items: Vec::with_capacity(capacity),
         }
     }
@@ -41,7 +43,8 @@ impl FeatureGrid {
 
     /// Buckets `keypoints` by undistorted position (points outside the bounds are left out).
     pub fn assign(&mut self, keypoints: &[KeyPoint]) {
-        self.starts.fill(0);
+        self.starts.clear();
+        self.starts.resize(self.cols * self.rows + 1, 0);
         for k in keypoints {
             if let Some((cx, cy)) = self.cell_of(k.ux, k.uy) {
                 self.starts[cy * self.cols + cx + 1] += 1;
@@ -84,6 +87,9 @@ impl FeatureGrid {
         out: &mut Vec<u32>,
     ) {
         out.clear();
+        if self.starts.is_empty() {
+            return; // Never assigned: no keypoints.
+        }
         let c0x = (((x - r - self.min_x) * self.inv_cell_w).floor().max(0.0)) as usize;
         let c0y = (((y - r - self.min_y) * self.inv_cell_h).floor().max(0.0)) as usize;
         let c1x = ((x + r - self.min_x) * self.inv_cell_w).floor();
@@ -136,8 +142,11 @@ mod tests {
             });
         }
         let mut g = FeatureGrid::new(64, 48, (0.0, 0.0, 640.0, 480.0), 1000);
+        let mut out = vec![7];
+        // Before the first assignment the grid holds nothing.
+        g.in_area(&kps, 100.0, 100.0, 30.0, 0, 7, &mut out);
+        assert!(out.is_empty());
         g.assign(&kps);
-        let mut out = Vec::new();
         for (x, y, r, lo, hi) in [
             (100.0, 100.0, 30.0, 0, 7),
             (0.0, 0.0, 50.0, 2, 3),
