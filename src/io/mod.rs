@@ -66,8 +66,8 @@ pub const ALLOCATOR_ARENAS: i32 = 2;
 /// (docs/PERFORMANCE.md) one arena gave a peak RSS of 263 and 255 MB against 285 and 271 MB
 /// uncapped, two arenas a median of 266 MB against 277 MB over three interleaved pairs. After
 /// warm-up the per-frame code does not allocate, so the arenas' locks are not on the frame
-/// path. Call before any thread starts (the binary does, first
-/// thing); an application embedding the library decides for its own process.
+/// path. Call before any thread starts (the binary does, first thing); an application
+/// embedding the library decides for its own process.
 pub fn limit_allocator_arenas(n: i32) {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     if std::env::var_os("MALLOC_ARENA_MAX").is_none() {
